@@ -1,0 +1,58 @@
+//! Ray-query backends. The renderer asks only "what does this ray hit first" and "is this segment
+//! blocked", for one ray or a batch; Embree (through FFI) answers by default, and the trait keeps
+//! the door open for a pure-Rust BVH so the two can be compared on the same scene.
+
+pub mod embree;
+
+use crate::geometry::{Ray, TriangleMesh};
+
+/// The first intersection along a ray. `geom_id` indexes the mesh list given to the backend,
+/// `prim_id` the triangle inside it; `(u, v)` are barycentrics: p = (1-u-v) p0 + u p1 + v p2.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Hit {
+    pub t: f32,
+    pub geom_id: u32,
+    pub prim_id: u32,
+    pub u: f32,
+    pub v: f32,
+}
+
+/// A backend's answer to ray queries over a fixed set of world-space triangle meshes.
+pub trait RayQuery: Send + Sync {
+    /// Short name for reports ("embree", "bvh").
+    fn name(&self) -> &'static str;
+
+    /// Closest hit with `ray.tmin < t < ray.tmax`.
+    fn intersect(&self, ray: &Ray) -> Option<Hit>;
+
+    /// True if anything lies on the ray with `ray.tmin < t < ray.tmax`.
+    fn occluded(&self, ray: &Ray) -> bool;
+
+    /// Closest hits for many rays at once; `hits.len() == rays.len()`.
+    fn intersect_batch(&self, rays: &[Ray], hits: &mut [Option<Hit>]) {
+        for (r, h) in rays.iter().zip(hits.iter_mut()) {
+            *h = self.intersect(r);
+        }
+    }
+
+    /// Occlusion for many rays at once; `occluded.len() == rays.len()`.
+    fn occluded_batch(&self, rays: &[Ray], occluded: &mut [bool]) {
+        for (r, o) in rays.iter().zip(occluded.iter_mut()) {
+            *o = self.occluded(r);
+        }
+    }
+}
+
+/// Which backend to build.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum AccelKind {
+    #[default]
+    Embree,
+}
+
+/// Builds the acceleration structure for `meshes` with the chosen backend.
+pub fn build(kind: AccelKind, meshes: &[TriangleMesh]) -> anyhow::Result<Box<dyn RayQuery>> {
+    match kind {
+        AccelKind::Embree => Ok(Box::new(embree::EmbreeScene::build(meshes)?)),
+    }
+}

@@ -1,0 +1,51 @@
+//! World-space triangle meshes: the single geometric primitive handed to the ray-query backends.
+//! Analytic shapes (rectangle, cube, disk, sphere) are tessellated on load with smooth normals and UVs
+//! kept, because the manifold walk needs continuous shading frames.
+
+use super::{Bounds3, Vec2, Vec3};
+
+#[derive(Clone, Debug, Default)]
+pub struct TriangleMesh {
+    /// Name for messages (the shape's id, or the file name).
+    pub name: String,
+    pub positions: Vec<Vec3>,
+    /// Per-vertex shading normals (unit length), if the shape has smooth shading.
+    pub normals: Option<Vec<Vec3>>,
+    /// Per-vertex texture coordinates.
+    pub uvs: Option<Vec<Vec2>>,
+    pub indices: Vec<[u32; 3]>,
+}
+
+impl TriangleMesh {
+    pub fn triangle_count(&self) -> usize {
+        self.indices.len()
+    }
+
+    pub fn vertices(&self, prim: usize) -> [Vec3; 3] {
+        let [a, b, c] = self.indices[prim];
+        [
+            self.positions[a as usize],
+            self.positions[b as usize],
+            self.positions[c as usize],
+        ]
+    }
+
+    pub fn area(&self, prim: usize) -> f32 {
+        let [a, b, c] = self.vertices(prim);
+        0.5 * (b - a).cross(c - a).length()
+    }
+
+    /// Unit geometric normal, oriented by the winding (counter-clockwise is front).
+    pub fn geometric_normal(&self, prim: usize) -> Vec3 {
+        let [a, b, c] = self.vertices(prim);
+        (b - a).cross(c - a).normalize_or_zero()
+    }
+
+    pub fn bounds(&self) -> Bounds3 {
+        let mut b = Bounds3::default();
+        for &p in &self.positions {
+            b.expand(p);
+        }
+        b
+    }
+}

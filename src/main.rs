@@ -1,0 +1,3 @@
+fn main() {
+    println!("hslt {}", env!("CARGO_PKG_VERSION"));
+}
