@@ -35,6 +35,8 @@ pub fn write_image(path: &Path, _img: &ImageBuf, _meta: &Metadata) -> anyhow::Re
     anyhow::bail!("{}: image output is not built yet", path.display())
 }
 
-pub fn read_image(path: &Path) -> anyhow::Result<ImageBuf> {
+/// Reads an image as linear floats. With `linearize_srgb`, sRGB-encoded sources (8/16-bit PNG, JPEG...)
+/// are converted to linear values, as Mitsuba does for bitmap textures unless `raw` is set.
+pub fn read_image(path: &Path, _linearize_srgb: bool) -> anyhow::Result<ImageBuf> {
     anyhow::bail!("{}: image input is not built yet", path.display())
 }

@@ -7,3 +7,5 @@ pub mod props;
 
 pub use error::{SceneError, SrcLoc};
 pub use props::{Prop, PropValue, Props};
+pub mod shapes;
+pub mod xml;

@@ -1,0 +1,3 @@
+//! Locates Embree 3 and checks the vendored bindings against its headers (placeholder).
+
+pub fn configure() {}
