@@ -3,6 +3,7 @@
 //! the door open for a pure-Rust BVH so the two can be compared on the same scene.
 
 pub mod embree;
+pub mod timed;
 
 use crate::geometry::{Ray, TriangleMesh};
 
@@ -40,6 +41,21 @@ pub trait RayQuery: Send + Sync {
         for (r, o) in rays.iter().zip(occluded.iter_mut()) {
             *o = self.occluded(r);
         }
+    }
+}
+
+/// A backend over no geometry: every ray misses.
+pub struct NoGeometry;
+
+impl RayQuery for NoGeometry {
+    fn name(&self) -> &'static str {
+        "none"
+    }
+    fn intersect(&self, _ray: &Ray) -> Option<Hit> {
+        None
+    }
+    fn occluded(&self, _ray: &Ray) -> bool {
+        false
     }
 }
 

@@ -1,0 +1,431 @@
+//! Command-line interface: `render`, `info` and `bench`. Parsing is clap's; this module turns the
+//! arguments into load and render options and writes the outputs with their metadata.
+
+use crate::accel::AccelKind;
+use crate::image::{ImageBuf, Metadata};
+use crate::integrators::{self, DepthLimits, IntegratorKind};
+use crate::render::{self, RenderOptions, RenderStats};
+use crate::scene::{LoadOptions, Scene};
+use anyhow::{bail, Context};
+use clap::{Args, Parser, Subcommand};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::Arc;
+use std::time::Duration;
+
+#[derive(Parser, Debug)]
+#[command(
+    name = "hslt",
+    version,
+    about = "Half-vector Space Light Transport renderer",
+    propagate_version = true
+)]
+pub struct Cli {
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+pub enum Command {
+    /// Render a Mitsuba XML scene to one or more images.
+    Render(RenderArgs),
+    /// Describe a scene: geometry, materials, lights, textures and which renderer features it needs.
+    Info(SceneArgs),
+    /// Measure path-tracer throughput on a scene and the share of time spent in ray queries.
+    Bench(BenchArgs),
+}
+
+#[derive(Args, Debug, Clone)]
+pub struct SceneArgs {
+    /// Scene file (Mitsuba XML, version 3.x or 0.6).
+    pub scene: PathBuf,
+    /// Set a scene parameter declared with <default name=.. value=..>, e.g. -D spp=256.
+    #[arg(short = 'D', value_name = "NAME=VALUE", value_parser = parse_define)]
+    pub define: Vec<(String, String)>,
+}
+
+#[derive(Args, Debug)]
+pub struct RenderArgs {
+    #[command(flatten)]
+    pub scene: SceneArgs,
+    /// Output image(s); the format follows the extension (.exr, .png, .jpg, .tif, .hdr). Repeatable.
+    #[arg(short, long = "output", required = true)]
+    pub output: Vec<PathBuf>,
+    /// Integrator (overrides the scene's <integrator>): pt.
+    #[arg(long)]
+    pub integrator: Option<String>,
+    /// Samples per pixel (overrides the scene's sampler); with --time, a cap.
+    #[arg(long)]
+    pub spp: Option<u32>,
+    /// Render for this many seconds.
+    #[arg(long, value_name = "SECONDS")]
+    pub time: Option<f64>,
+    /// Worker threads (0 = all cores).
+    #[arg(long, default_value_t = 0)]
+    pub threads: usize,
+    /// Seed of all random streams.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Longest path in segments, Mitsuba's meaning (-1 = unbounded); overrides the scene.
+    #[arg(long, allow_negative_numbers = true)]
+    pub max_depth: Option<i32>,
+    /// Ray-query backend.
+    #[arg(long, default_value = "embree")]
+    pub accel: String,
+    /// No progress bar or summary.
+    #[arg(short, long)]
+    pub quiet: bool,
+}
+
+#[derive(Args, Debug)]
+pub struct BenchArgs {
+    #[command(flatten)]
+    pub scene: SceneArgs,
+    /// Samples per pixel for each measured run.
+    #[arg(long, default_value_t = 4)]
+    pub spp: u32,
+    /// Worker threads (0 = all cores).
+    #[arg(long, default_value_t = 0)]
+    pub threads: usize,
+}
+
+fn parse_define(s: &str) -> Result<(String, String), String> {
+    match s.split_once('=') {
+        Some((k, v)) if !k.trim().is_empty() => Ok((k.trim().to_string(), v.to_string())),
+        _ => Err(format!("'{s}' is not of the form NAME=VALUE")),
+    }
+}
+
+fn parse_accel(name: &str) -> anyhow::Result<AccelKind> {
+    match name {
+        "embree" => Ok(AccelKind::Embree),
+        other => bail!("unknown ray-query backend '{other}' (available: embree)"),
+    }
+}
+
+/// Set by the Ctrl-C handler; the render loop finishes its current tiles and returns.
+static CANCEL: AtomicBool = AtomicBool::new(false);
+
+pub fn run(cli: Cli) -> anyhow::Result<i32> {
+    match cli.command {
+        Command::Render(args) => run_render(args),
+        Command::Info(args) => run_info(args),
+        Command::Bench(args) => run_bench(args),
+    }
+}
+
+fn thread_pool(threads: usize) -> anyhow::Result<rayon::ThreadPool> {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .thread_name(|i| format!("hslt-worker-{i}"))
+        .build()
+        .context("cannot start the worker threads")
+}
+
+fn load(args: &SceneArgs, accel: AccelKind) -> anyhow::Result<Scene> {
+    let scene = Scene::load(
+        &args.scene,
+        &LoadOptions {
+            defines: args.define.clone(),
+            accel,
+        },
+    )?;
+    for w in &scene.warnings {
+        eprintln!("warning: {w}");
+    }
+    Ok(scene)
+}
+
+fn check_output_paths(outputs: &[PathBuf]) -> anyhow::Result<()> {
+    for o in outputs {
+        let ext = o
+            .extension()
+            .and_then(|e| e.to_str())
+            .map(|e| e.to_ascii_lowercase());
+        match ext.as_deref() {
+            Some("exr" | "png" | "jpg" | "jpeg" | "tif" | "tiff" | "hdr") => {}
+            _ => bail!(
+                "{}: unsupported output format (use .exr, .png, .jpg, .tif or .hdr)",
+                o.display()
+            ),
+        }
+        if let Some(dir) = o.parent().filter(|d| !d.as_os_str().is_empty()) {
+            if !dir.is_dir() {
+                bail!(
+                    "{}: the output directory {} does not exist",
+                    o.display(),
+                    dir.display()
+                );
+            }
+        }
+    }
+    Ok(())
+}
+
+fn run_render(args: RenderArgs) -> anyhow::Result<i32> {
+    check_output_paths(&args.output)?;
+    if let Some(t) = args.time {
+        if !(t > 0.0 && t.is_finite()) {
+            bail!("--time must be a positive number of seconds");
+        }
+    }
+    if args.spp == Some(0) {
+        bail!("--spp must be at least 1");
+    }
+    let scene = load(&args.scene, parse_accel(&args.accel)?)?;
+    let kind_name = args
+        .integrator
+        .clone()
+        .unwrap_or_else(|| scene.integrator.kind.clone());
+    let kind = IntegratorKind::parse(&kind_name).map_err(anyhow::Error::msg)?;
+    let limits = DepthLimits {
+        max_depth: args.max_depth.unwrap_or(scene.integrator.max_depth),
+        rr_depth: scene.integrator.rr_depth,
+    };
+    if limits.max_depth == 0 || limits.max_depth < -1 {
+        bail!("--max-depth must be -1 (unbounded) or at least 1");
+    }
+    let integrator = integrators::make(kind, limits, scene.integrator.hide_emitters);
+    let options = RenderOptions {
+        spp: args.spp.or(if args.time.is_some() {
+            None
+        } else {
+            Some(scene.spp)
+        }),
+        time_limit: args.time.map(Duration::from_secs_f64),
+        seed: args.seed,
+        progress: !args.quiet,
+    };
+    let _ = ctrlc::set_handler(|| {
+        if CANCEL.swap(true, Ordering::SeqCst) {
+            // A second Ctrl-C means the user does not want to wait for the current tiles.
+            std::process::exit(130);
+        }
+        eprintln!("\ninterrupted: finishing the current tiles and writing the image so far");
+    });
+    let pool = thread_pool(args.threads)?;
+    let threads = pool.current_num_threads();
+    let (film, stats) =
+        pool.install(|| render::render(&scene, integrator.as_ref(), &options, &CANCEL));
+    let image = film.to_image();
+    let meta = metadata(&scene, kind.name(), &options, limits, threads, &stats);
+    for out in &args.output {
+        crate::image::write_image(out, &image, &meta)
+            .with_context(|| format!("cannot write {}", out.display()))?;
+    }
+    if !args.quiet {
+        print_summary(&args.output, &stats, threads);
+    }
+    Ok(if stats.interrupted { 130 } else { 0 })
+}
+
+fn metadata(
+    scene: &Scene,
+    integrator: &str,
+    options: &RenderOptions,
+    limits: DepthLimits,
+    threads: usize,
+    stats: &RenderStats,
+) -> Metadata {
+    vec![
+        ("hslt.version".into(), env!("CARGO_PKG_VERSION").into()),
+        ("hslt.scene".into(), scene.path.display().to_string()),
+        ("hslt.integrator".into(), integrator.into()),
+        ("hslt.seed".into(), options.seed.to_string()),
+        ("hslt.spp".into(), stats.min_spp.to_string()),
+        ("hslt.samples".into(), stats.samples.to_string()),
+        ("hslt.max_depth".into(), limits.max_depth.to_string()),
+        ("hslt.rr_depth".into(), limits.rr_depth.to_string()),
+        ("hslt.threads".into(), threads.to_string()),
+        (
+            "hslt.elapsed_seconds".into(),
+            format!("{:.3}", stats.elapsed.as_secs_f64()),
+        ),
+        (
+            "hslt.invalid_samples".into(),
+            stats.invalid_samples.to_string(),
+        ),
+        ("hslt.interrupted".into(), stats.interrupted.to_string()),
+    ]
+}
+
+fn print_summary(outputs: &[PathBuf], stats: &RenderStats, threads: usize) {
+    let secs = stats.elapsed.as_secs_f64().max(1e-9);
+    eprintln!(
+        "{} spp in {:.2} s on {} threads: {:.3} M samples/s, {:.2} M rays/s{}{}",
+        stats.min_spp,
+        secs,
+        threads,
+        stats.samples as f64 / secs * 1e-6,
+        stats.rays as f64 / secs * 1e-6,
+        if stats.invalid_samples > 0 {
+            format!(", {} NaN/Inf samples dropped", stats.invalid_samples)
+        } else {
+            String::new()
+        },
+        if stats.interrupted {
+            " (interrupted)"
+        } else {
+            ""
+        },
+    );
+    for o in outputs {
+        eprintln!("wrote {}", o.display());
+    }
+}
+
+fn run_info(args: SceneArgs) -> anyhow::Result<i32> {
+    let scene = load(&args, AccelKind::Embree)?;
+    print!("{}", describe(&scene));
+    Ok(0)
+}
+
+/// The `hslt info` report.
+pub fn describe(scene: &Scene) -> String {
+    use std::fmt::Write;
+    let f = &scene.features;
+    let mut s = String::new();
+    let _ = writeln!(s, "scene      {}", scene.path.display());
+    let _ = writeln!(
+        s,
+        "film       {} x {}, {:?}",
+        scene.film.width, scene.film.height, scene.film.rfilter
+    );
+    let _ = writeln!(s, "samples    {} per pixel", scene.spp);
+    let _ = writeln!(
+        s,
+        "integrator {} (max_depth {}, rr_depth {})",
+        scene.integrator.kind, scene.integrator.max_depth, scene.integrator.rr_depth
+    );
+    let _ = writeln!(s, "shapes     {}", scene.shapes.len());
+    let _ = writeln!(s, "triangles  {}", f.triangles);
+    let _ = writeln!(s, "materials  {}", f.bsdf_types.join(", "));
+    let _ = writeln!(
+        s,
+        "lights     {} ({})",
+        scene.lights.len(),
+        f.light_types.join(", ")
+    );
+    let _ = writeln!(s, "textures   {} bitmap(s)", f.textures);
+    let _ = writeln!(
+        s,
+        "bounds     {:?} .. {:?}",
+        scene.bounds.min, scene.bounds.max
+    );
+    let yes = |b: bool| if b { "yes" } else { "no" };
+    let _ = writeln!(s, "needs      texture system: {}", yes(f.textures > 0));
+    let _ = writeln!(
+        s,
+        "           manifold walk (specular/glossy vertices): {}",
+        yes(f.needs_manifold_walk())
+    );
+    let _ = writeln!(s, "           refraction: {}", yes(f.has_transmission));
+    let _ = writeln!(
+        s,
+        "           environment lighting: {}",
+        yes(!scene.infinite_lights.is_empty())
+    );
+    s
+}
+
+fn run_bench(args: BenchArgs) -> anyhow::Result<i32> {
+    let mut scene = load(&args.scene, AccelKind::Embree)?;
+    let pool = thread_pool(args.threads)?;
+    let threads = pool.current_num_threads();
+    let integrator = integrators::make(
+        IntegratorKind::Path,
+        DepthLimits {
+            max_depth: scene.integrator.max_depth,
+            rr_depth: scene.integrator.rr_depth,
+        },
+        scene.integrator.hide_emitters,
+    );
+    let options = RenderOptions {
+        spp: Some(args.spp),
+        time_limit: None,
+        seed: 1,
+        progress: false,
+    };
+    let never = AtomicBool::new(false);
+    // Warm-up pass so page faults and lazy initialisation are not measured.
+    pool.install(|| {
+        render::render(
+            &scene,
+            integrator.as_ref(),
+            &RenderOptions {
+                spp: Some(1),
+                ..options.clone()
+            },
+            &never,
+        )
+    });
+    let (_, plain) = pool.install(|| render::render(&scene, integrator.as_ref(), &options, &never));
+    let nanos = Arc::new(AtomicU64::new(0));
+    scene.replace_accel(|inner| {
+        Box::new(crate::accel::timed::TimedQuery::new(inner, nanos.clone()))
+    });
+    let (_, inst) = pool.install(|| render::render(&scene, integrator.as_ref(), &options, &never));
+    let query_secs = nanos.load(Ordering::Relaxed) as f64 * 1e-9;
+    let busy = inst.elapsed.as_secs_f64() * threads as f64;
+    let secs = plain.elapsed.as_secs_f64().max(1e-9);
+    println!("scene            {}", scene.path.display());
+    println!("threads          {threads}");
+    println!(
+        "image            {} x {} at {} spp",
+        scene.film.width, scene.film.height, args.spp
+    );
+    println!("samples/s        {:.0}", plain.samples as f64 / secs);
+    println!("rays/s           {:.0}", plain.rays as f64 / secs);
+    println!(
+        "rays per sample  {:.2}",
+        plain.rays as f64 / plain.samples.max(1) as f64
+    );
+    println!(
+        "time in {}   {:.1}% (timer overhead {:.1}%, measured in a second instrumented run)",
+        scene.accel().name(),
+        100.0 * query_secs / busy.max(1e-9),
+        100.0 * (inst.elapsed.as_secs_f64() / secs - 1.0).max(0.0)
+    );
+    Ok(0)
+}
+
+/// Used by tests: loads a scene with overrides.
+pub fn load_scene(path: &Path, defines: &[(&str, &str)]) -> anyhow::Result<Scene> {
+    let defines = defines
+        .iter()
+        .map(|(k, v)| (k.to_string(), v.to_string()))
+        .collect();
+    Scene::load(
+        path,
+        &LoadOptions {
+            defines,
+            accel: AccelKind::Embree,
+        },
+    )
+}
+
+/// Renders a loaded scene in-process with a given integrator (tests and the comparison tooling).
+pub fn render_scene(
+    scene: &Scene,
+    kind: IntegratorKind,
+    spp: u32,
+    seed: u64,
+) -> (ImageBuf, RenderStats) {
+    let integrator = integrators::make(
+        kind,
+        DepthLimits {
+            max_depth: scene.integrator.max_depth,
+            rr_depth: scene.integrator.rr_depth,
+        },
+        scene.integrator.hide_emitters,
+    );
+    let options = RenderOptions {
+        spp: Some(spp),
+        time_limit: None,
+        seed,
+        progress: false,
+    };
+    let never = AtomicBool::new(false);
+    let (film, stats) = render::render(scene, integrator.as_ref(), &options, &never);
+    (film.to_image(), stats)
+}

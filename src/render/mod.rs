@@ -1,0 +1,268 @@
+//! The render loop shared by all pixel integrators: passes of samples over 16×16 tiles in parallel,
+//! per-pixel random streams keyed by (seed, pixel, sample index), and accumulation in a fixed order,
+//! so the same seed and sample count give the same image for any thread count. A time budget, a
+//! cancellation flag (Ctrl-C) and a progress bar sit here, outside the integrators.
+
+mod film;
+
+pub use film::Film;
+
+use crate::integrators::{PixelIntegrator, SampleCounters};
+use crate::sampling::Sampler;
+use crate::scene::Scene;
+use crate::spectrum::Spectrum;
+use glam::Vec2;
+use rayon::prelude::*;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::time::{Duration, Instant};
+
+const TILE: usize = 16;
+
+/// How long and how densely to render.
+#[derive(Clone, Debug)]
+pub struct RenderOptions {
+    /// Samples per pixel to reach (the cap when a time budget is also given).
+    pub spp: Option<u32>,
+    /// Wall-clock budget.
+    pub time_limit: Option<Duration>,
+    pub seed: u64,
+    /// Show a progress bar (only drawn on a terminal).
+    pub progress: bool,
+}
+
+/// What happened during a render.
+#[derive(Clone, Debug, Default)]
+pub struct RenderStats {
+    /// Samples added to the film.
+    pub samples: u64,
+    /// Samples whose estimate was NaN or infinite; they are dropped, never averaged in.
+    pub invalid_samples: u64,
+    pub rays: u64,
+    pub elapsed: Duration,
+    /// Complete passes over the image.
+    pub passes: u32,
+    /// Sample count every pixel has reached.
+    pub min_spp: u32,
+    pub interrupted: bool,
+}
+
+/// Renders `scene` with a pixel integrator. Stops at the sample target, the time limit or when
+/// `cancel` is set, whichever comes first, and returns the film with everything finished so far.
+pub fn render(
+    scene: &Scene,
+    integrator: &dyn PixelIntegrator,
+    options: &RenderOptions,
+    cancel: &AtomicBool,
+) -> (Film, RenderStats) {
+    let (width, height) = (scene.film.width, scene.film.height);
+    let mut film = Film::new(width, height);
+    let tiles = tile_grid(width, height);
+    let start = Instant::now();
+    let target = match (options.spp, options.time_limit) {
+        (Some(n), _) => Some(n.max(1)),
+        (None, Some(_)) => None,
+        (None, None) => Some(scene.spp.max(1)),
+    };
+    let progress = make_progress(options, target, width * height);
+    let mut stats = RenderStats::default();
+    let invalid = AtomicU64::new(0);
+    let rays = AtomicU64::new(0);
+    let mut done_spp: u32 = 0;
+    let mut pass_size: u32 = 1;
+
+    loop {
+        if let Some(t) = target {
+            if done_spp >= t {
+                break;
+            }
+            pass_size = pass_size.min(t - done_spp);
+        }
+        if cancel.load(Ordering::Relaxed) {
+            stats.interrupted = true;
+            break;
+        }
+        if let Some(limit) = options.time_limit {
+            if start.elapsed() >= limit {
+                break;
+            }
+        }
+        let pass_start = Instant::now();
+        let first_sample = done_spp;
+        let results: Vec<Option<TileResult>> = tiles
+            .par_iter()
+            .map(|tile| {
+                if cancel.load(Ordering::Relaxed) {
+                    return None;
+                }
+                let r = render_tile(
+                    scene,
+                    integrator,
+                    options.seed,
+                    tile,
+                    first_sample,
+                    pass_size,
+                    width,
+                );
+                invalid.fetch_add(r.invalid, Ordering::Relaxed);
+                rays.fetch_add(r.counters.rays, Ordering::Relaxed);
+                if let Some(pb) = &progress {
+                    if target.is_some() {
+                        pb.inc((tile.w * tile.h) as u64 * pass_size as u64);
+                    }
+                }
+                Some(r)
+            })
+            .collect();
+        let mut complete = true;
+        for (tile, r) in tiles.iter().zip(results) {
+            match r {
+                Some(r) => {
+                    film.add_tile(tile.x, tile.y, tile.w, tile.h, &r.sums, pass_size);
+                    stats.samples += r.added;
+                }
+                None => complete = false,
+            }
+        }
+        if !complete {
+            stats.interrupted = true;
+            break;
+        }
+        done_spp += pass_size;
+        stats.passes += 1;
+        if let (Some(pb), None, Some(limit)) = (&progress, target, options.time_limit) {
+            pb.set_position(start.elapsed().as_millis().min(limit.as_millis()) as u64);
+            pb.set_message(format!("{done_spp} spp"));
+        }
+        // Aim for passes of about half a second so progress, time limits and Ctrl-C stay responsive.
+        let pass_time = pass_start.elapsed().as_secs_f64().max(1e-4);
+        let grow = (0.5 / (pass_time / pass_size as f64)).floor() as u32;
+        pass_size = grow.clamp(1, 64).max(1);
+        if let Some(limit) = options.time_limit {
+            let remaining = limit.saturating_sub(start.elapsed()).as_secs_f64();
+            let per_sample = pass_time / (done_spp - first_sample).max(1) as f64;
+            let affordable = (remaining / per_sample).floor() as u32;
+            if affordable == 0 {
+                break;
+            }
+            pass_size = pass_size.min(affordable);
+        }
+    }
+    if let Some(pb) = progress {
+        pb.finish_and_clear();
+    }
+    stats.min_spp = done_spp;
+    stats.invalid_samples = invalid.load(Ordering::Relaxed);
+    stats.rays = rays.load(Ordering::Relaxed);
+    stats.elapsed = start.elapsed();
+    (film, stats)
+}
+
+#[derive(Clone, Copy, Debug)]
+struct Tile {
+    x: usize,
+    y: usize,
+    w: usize,
+    h: usize,
+}
+
+fn tile_grid(width: usize, height: usize) -> Vec<Tile> {
+    let mut tiles = Vec::new();
+    for y in (0..height).step_by(TILE) {
+        for x in (0..width).step_by(TILE) {
+            tiles.push(Tile {
+                x,
+                y,
+                w: TILE.min(width - x),
+                h: TILE.min(height - y),
+            });
+        }
+    }
+    tiles
+}
+
+struct TileResult {
+    /// Per-pixel sums of this pass, in f64 so long renders do not lose small contributions.
+    sums: Vec<[f64; 3]>,
+    added: u64,
+    invalid: u64,
+    counters: SampleCounters,
+}
+
+fn render_tile(
+    scene: &Scene,
+    integrator: &dyn PixelIntegrator,
+    seed: u64,
+    tile: &Tile,
+    first_sample: u32,
+    count: u32,
+    width: usize,
+) -> TileResult {
+    let mut sums = vec![[0.0f64; 3]; tile.w * tile.h];
+    let mut counters = SampleCounters::default();
+    let (mut added, mut invalid) = (0u64, 0u64);
+    for py in 0..tile.h {
+        for px in 0..tile.w {
+            let (x, y) = (tile.x + px, tile.y + py);
+            let pixel_index = (y * width + x) as u64;
+            let acc = &mut sums[py * tile.w + px];
+            for s in first_sample..first_sample + count {
+                let mut sampler = Sampler::new(seed, pixel_index, s as u64);
+                let offset = scene.film.rfilter.sample(sampler.next_2d());
+                let pos = Vec2::new(x as f32 + 0.5, y as f32 + 0.5) + offset;
+                let ray = scene.camera.generate_ray(pos);
+                let l: Spectrum = integrator.li(scene, &ray, &mut sampler, &mut counters);
+                if l.is_finite() && l.min_element() >= 0.0 {
+                    acc[0] += l.x as f64;
+                    acc[1] += l.y as f64;
+                    acc[2] += l.z as f64;
+                } else {
+                    // Counted and dropped; the pixel's sample count still advances, which keeps the
+                    // estimator consistent (a zero sample) instead of biasing it upwards.
+                    invalid += 1;
+                }
+                added += 1;
+            }
+        }
+    }
+    TileResult {
+        sums,
+        added,
+        invalid,
+        counters,
+    }
+}
+
+fn make_progress(
+    options: &RenderOptions,
+    target: Option<u32>,
+    pixels: usize,
+) -> Option<indicatif::ProgressBar> {
+    use std::io::IsTerminal;
+    if !options.progress || !std::io::stderr().is_terminal() {
+        return None;
+    }
+    let pb = match (target, options.time_limit) {
+        (Some(t), _) => {
+            let pb = indicatif::ProgressBar::new(t as u64 * pixels as u64);
+            pb.set_style(
+                indicatif::ProgressStyle::with_template(
+                    "{spinner} [{elapsed_precise}] {wide_bar} {percent}% {per_sec} ETA {eta}",
+                )
+                .ok()?,
+            );
+            pb
+        }
+        (None, Some(limit)) => {
+            let pb = indicatif::ProgressBar::new(limit.as_millis() as u64);
+            pb.set_style(
+                indicatif::ProgressStyle::with_template(
+                    "{spinner} [{elapsed_precise}] {wide_bar} {msg} ETA {eta}",
+                )
+                .ok()?,
+            );
+            pb
+        }
+        (None, None) => return None,
+    };
+    Some(pb)
+}
