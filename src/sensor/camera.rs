@@ -126,16 +126,11 @@ impl PerspectiveCamera {
             (1.0 - 2.0 * sy) * self.tan_half.y,
             1.0,
         );
-        // Clip planes are perpendicular to the viewing axis, so the distances along this ray grow with
-        // |local| (local.z = 1); assumes a rigid to_world, as camera matrices are.
-        let len = local.length();
-        let dir = self.to_world.vector(local).normalize();
-        Ray {
-            origin: self.position(),
-            dir,
-            tmin: self.near_clip * len,
-            tmax: self.far_clip * len,
-        }
+        // Clip distances are measured in camera space, as Mitsuba does, so a scaled to_world scales them.
+        let world = self.to_world.vector(local);
+        let len = world.length();
+        let dir = world / len;
+        Ray { origin: self.position(), dir, tmin: self.near_clip * len, tmax: self.far_clip * len }
     }
 
     /// Film position of a world-space direction leaving the pinhole, if it lands inside the image.

@@ -1,0 +1,144 @@
+//! The `hslt` command as a user meets it: bad input gives one clear error line and a non-zero exit
+//! (never a panic), warnings for recoverable problems, Ctrl-C writes the image rendered so far,
+//! and outputs carry their metadata.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn hslt() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_hslt"))
+}
+
+fn data(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/cli").join(name)
+}
+
+fn tmp_dir(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("hslt-cli-{}-{name}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+/// Runs `hslt info` on a scene and expects a failure whose single error line contains `needles`.
+fn expect_error(args: &[&str], needles: &[&str]) {
+    let out = hslt().args(args).output().unwrap();
+    let err = stderr(&out);
+    assert!(!out.status.success(), "{args:?} succeeded; stderr: {err}");
+    assert!(!err.contains("panicked"), "{args:?} panicked: {err}");
+    let error_lines: Vec<&str> = err.lines().filter(|l| l.starts_with("error:")).collect();
+    assert_eq!(error_lines.len(), 1, "{args:?}: expected one error line, got: {err}");
+    for n in needles {
+        assert!(error_lines[0].contains(n), "{args:?}: '{n}' missing from: {}", error_lines[0]);
+    }
+}
+
+#[test]
+fn malformed_xml_names_file_and_line() {
+    let f = data("malformed.xml");
+    expect_error(&["info", f.to_str().unwrap()], &["malformed.xml:"]);
+}
+
+#[test]
+fn unknown_plugin_is_named() {
+    let f = data("unknown-plugin.xml");
+    expect_error(&["info", f.to_str().unwrap()], &["unknown-plugin.xml:6", "velvet-unicorn"]);
+}
+
+#[test]
+fn missing_mesh_names_the_path() {
+    let f = data("base.xml");
+    expect_error(&["info", f.to_str().unwrap(), "-D", "mesh=does-not-exist.obj"], &["does-not-exist.obj"]);
+}
+
+#[test]
+fn truncated_ply_is_an_error() {
+    let f = data("base.xml");
+    let out = hslt().args(["info", f.to_str().unwrap(), "-D", "mesh=truncated.ply"]).output().unwrap();
+    let err = stderr(&out);
+    assert!(!out.status.success() && !err.contains("panicked"), "{err}");
+    assert!(err.contains("truncated.ply"), "{err}");
+}
+
+#[test]
+fn nan_vertex_is_an_error() {
+    let f = data("base.xml");
+    expect_error(&["info", f.to_str().unwrap(), "-D", "mesh=nan.obj"], &["nan.obj"]);
+}
+
+#[test]
+fn degenerate_triangle_is_skipped_with_a_warning() {
+    let f = data("base.xml");
+    let out = hslt().args(["info", f.to_str().unwrap(), "-D", "mesh=degenerate.obj"]).output().unwrap();
+    let err = stderr(&out);
+    assert!(out.status.success(), "{err}");
+    assert!(err.lines().any(|l| l.starts_with("warning:") && l.contains("degenerate")), "{err}");
+    assert!(String::from_utf8_lossy(&out.stdout).contains("triangles  1"));
+}
+
+#[test]
+fn undefined_parameter_and_bad_cli_values_are_errors() {
+    let f = data("base.xml");
+    expect_error(&["render", f.to_str().unwrap(), "-o", "x.exr", "--integrator", "nope"], &["nope"]);
+    expect_error(&["render", f.to_str().unwrap(), "-o", "x.bmp"], &["x.bmp"]);
+    expect_error(&["info", data("nope.xml").to_str().unwrap()], &["nope.xml"]);
+}
+
+#[test]
+fn info_reports_what_the_scene_needs() {
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/cornell-box/scene.xml");
+    let out = hslt().args(["info", scene.to_str().unwrap()]).output().unwrap();
+    assert!(out.status.success(), "{}", stderr(&out));
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(text.contains("texture system: no"), "{text}");
+    assert!(text.contains("manifold walk (specular/glossy vertices): no"), "{text}");
+    assert!(text.contains("lights     1 (area)"), "{text}");
+}
+
+#[test]
+fn render_writes_exr_with_metadata_and_png() {
+    let dir = tmp_dir("render");
+    let exr = dir.join("out.exr");
+    let png = dir.join("out.png");
+    let f = data("base.xml");
+    let out = hslt()
+        .args(["render", f.to_str().unwrap(), "-o", exr.to_str().unwrap(), "-o", png.to_str().unwrap()])
+        .args(["--spp", "4", "--seed", "9", "-q"])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", stderr(&out));
+    assert!(png.metadata().unwrap().len() > 0);
+    let meta = hslt::image::read_exr_metadata(&exr).unwrap();
+    let get = |k: &str| meta.iter().find(|(n, _)| n == k).map(|(_, v)| v.clone());
+    assert_eq!(get("hslt.seed").as_deref(), Some("9"));
+    assert_eq!(get("hslt.integrator").as_deref(), Some("pt"));
+    assert_eq!(get("hslt.spp").as_deref(), Some("4"));
+    let leftovers: Vec<_> = std::fs::read_dir(&dir).unwrap().filter_map(|e| e.ok()).map(|e| e.file_name()).collect();
+    assert_eq!(leftovers.len(), 2, "temporary files left behind: {leftovers:?}");
+}
+
+#[cfg(unix)]
+#[test]
+fn interrupt_writes_the_image_so_far() {
+    let dir = tmp_dir("interrupt");
+    let exr = dir.join("partial.exr");
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/cornell-box/scene.xml");
+    let child = hslt()
+        .args(["render", scene.to_str().unwrap(), "-o", exr.to_str().unwrap(), "--time", "60", "-q"])
+        .args(["--threads", "1"])
+        .spawn()
+        .unwrap();
+    std::thread::sleep(std::time::Duration::from_millis(2500));
+    let status = Command::new("kill").args(["-INT", &child.id().to_string()]).status().unwrap();
+    assert!(status.success());
+    let out = child.wait_with_output().unwrap();
+    assert_eq!(out.status.code(), Some(130), "expected the interrupted exit code");
+    let img = hslt::image::read_image(&exr, false).unwrap();
+    let mean = img.data.iter().map(|&v| v as f64).sum::<f64>() / img.data.len() as f64;
+    assert!(img.data.iter().all(|v| v.is_finite()) && mean > 0.01, "partial image mean {mean}");
+    let meta = hslt::image::read_exr_metadata(&exr).unwrap();
+    assert!(meta.iter().any(|(k, v)| k == "hslt.interrupted" && v == "true"));
+}
