@@ -13,16 +13,18 @@ fn data_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/scene")
 }
 
+/// The public scenes beside the repository (`../shared/scenes`, as on CI), or `HSLT_SHARED_SCENES`.
+/// Missing scenes fail the test instead of skipping it.
 fn shared_scenes() -> Option<PathBuf> {
     let dir = std::env::var_os("HSLT_SHARED_SCENES")
         .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from("/work/shared/scenes"));
-    if dir.join("cornell-box/scene.xml").is_file() {
-        Some(dir)
-    } else {
-        eprintln!("shared scenes not found at {}; skipping", dir.display());
-        None
-    }
+        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/scenes"));
+    assert!(
+        dir.join("cornell-box/scene.xml").is_file(),
+        "shared scenes not found at {} (set HSLT_SHARED_SCENES)",
+        dir.display()
+    );
+    Some(dir)
 }
 
 /// Parses a one-shape scene snippet and loads its shape relative to the fixture directory.

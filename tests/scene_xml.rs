@@ -13,19 +13,18 @@ fn data(rel: &str) -> PathBuf {
         .join(rel)
 }
 
+/// The public scenes beside the repository (`../shared/scenes`, as on CI), or `HSLT_SHARED_SCENES`.
+/// Missing scenes fail the test instead of skipping it.
 fn shared_scenes() -> Option<PathBuf> {
     let dir = std::env::var_os("HSLT_SHARED_SCENES")
         .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from("/work/shared/scenes"));
-    if dir.join("cornell-box/scene.xml").is_file() {
-        Some(dir)
-    } else {
-        eprintln!(
-            "shared scenes not found at {} (set HSLT_SHARED_SCENES); skipping",
-            dir.display()
-        );
-        None
-    }
+        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/scenes"));
+    assert!(
+        dir.join("cornell-box/scene.xml").is_file(),
+        "shared scenes not found at {} (set HSLT_SHARED_SCENES)",
+        dir.display()
+    );
+    Some(dir)
 }
 
 fn top<'a>(scene: &'a Props, tag: &'a str) -> Vec<&'a Arc<Props>> {
