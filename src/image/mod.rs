@@ -15,7 +15,8 @@ mod oiio;
 mod png_io;
 
 /// A linear float image, row-major, row 0 at the top, `channels` interleaved values per pixel.
-/// Channel layouts: 1 = Y, 2 = Y+A, 3 = RGB, 4 = RGBA (alpha is never sRGB-encoded).
+/// Channel layouts: 1 = Y, 2 = Y+A, 3 = RGB, 4 = RGBA. Alpha is straight (not premultiplied) and
+/// never sRGB-encoded; readers return the stored values without (un)premultiplying.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ImageBuf {
     pub width: usize,
@@ -212,9 +213,14 @@ pub fn write_image(path: &Path, img: &ImageBuf, meta: &Metadata) -> anyhow::Resu
 /// (8-bit formats get clamped sRGB, TIFF/HDR linear float); .png through the `png` crate without
 /// the `oiio` feature. NaN/Inf are replaced by 0, counted in the report and, when any were found,
 /// recorded in the file's metadata under [`NON_FINITE_KEY`].
-pub fn write_image_with_report(path: &Path, img: &ImageBuf, meta: &Metadata) -> anyhow::Result<WriteReport> {
+pub fn write_image_with_report(
+    path: &Path,
+    img: &ImageBuf,
+    meta: &Metadata,
+) -> anyhow::Result<WriteReport> {
     let format = output_format(path)?;
-    img.check_layout().with_context(|| format!("{}: cannot write", path.display()))?;
+    img.check_layout()
+        .with_context(|| format!("{}: cannot write", path.display()))?;
     let (clean, replaced) = img.sanitized();
     let meta = with_non_finite_record(meta, replaced);
     write_atomically(path, |tmp| match format {
@@ -227,12 +233,22 @@ pub fn write_image_with_report(path: &Path, img: &ImageBuf, meta: &Metadata) -> 
 }
 
 #[cfg(feature = "oiio")]
-fn write_non_exr(tmp: &Path, _format: Format, img: &ImageBuf, meta: &Metadata) -> anyhow::Result<()> {
+fn write_non_exr(
+    tmp: &Path,
+    _format: Format,
+    img: &ImageBuf,
+    meta: &Metadata,
+) -> anyhow::Result<()> {
     oiio::write(tmp, img, meta)
 }
 
 #[cfg(not(feature = "oiio"))]
-fn write_non_exr(tmp: &Path, format: Format, img: &ImageBuf, meta: &Metadata) -> anyhow::Result<()> {
+fn write_non_exr(
+    tmp: &Path,
+    format: Format,
+    img: &ImageBuf,
+    meta: &Metadata,
+) -> anyhow::Result<()> {
     match format {
         Format::Png => png_io::write(tmp, img, meta),
         other => anyhow::bail!(
@@ -250,7 +266,10 @@ pub fn write_exr_layers(
     meta: &Metadata,
 ) -> anyhow::Result<WriteReport> {
     if output_format(path)? != Format::Exr {
-        anyhow::bail!("{}: multi-layer output must have the .exr extension", path.display());
+        anyhow::bail!(
+            "{}: multi-layer output must have the .exr extension",
+            path.display()
+        );
     }
     let mut cleaned = Vec::with_capacity(layers.len());
     let mut replaced = 0;
@@ -362,14 +381,23 @@ fn temp_path_for(target: &Path) -> anyhow::Result<PathBuf> {
 /// Runs `write` on a temporary file next to `target`, fsyncs it and renames it over `target`, so
 /// readers never see a partial image. On any error the temporary file is removed and `target` is
 /// left untouched.
-fn write_atomically(target: &Path, write: impl FnOnce(&Path) -> anyhow::Result<()>) -> anyhow::Result<()> {
+fn write_atomically(
+    target: &Path,
+    write: impl FnOnce(&Path) -> anyhow::Result<()>,
+) -> anyhow::Result<()> {
     let tmp = temp_path_for(target)?;
     // create_new both reserves the name and gives a clear error for a missing/readonly directory.
     fs::OpenOptions::new()
         .write(true)
         .create_new(true)
         .open(&tmp)
-        .with_context(|| format!("{}: cannot create temporary file {}", target.display(), tmp.display()))?;
+        .with_context(|| {
+            format!(
+                "{}: cannot create temporary file {}",
+                target.display(),
+                tmp.display()
+            )
+        })?;
     let result = (|| -> anyhow::Result<()> {
         write(&tmp)?;
         fs::File::open(&tmp)
@@ -435,7 +463,10 @@ mod tests {
         assert_eq!(output_format(Path::new("x.jpeg")).unwrap(), Format::Jpeg);
         assert_eq!(output_format(Path::new("x.tif")).unwrap(), Format::Tiff);
         let err = output_format(Path::new("out.bmp")).unwrap_err().to_string();
-        assert!(err.contains("out.bmp") && err.contains(".bmp") && err.contains(".exr"), "{err}");
+        assert!(
+            err.contains("out.bmp") && err.contains(".bmp") && err.contains(".exr"),
+            "{err}"
+        );
         let err = output_format(Path::new("noext")).unwrap_err().to_string();
         assert!(err.contains("(none)"), "{err}");
     }
@@ -445,8 +476,14 @@ mod tests {
         let tmp = temp_path_for(Path::new("/some/dir/render.png")).unwrap();
         assert_eq!(tmp.parent(), Some(Path::new("/some/dir")));
         let name = tmp.file_name().unwrap().to_string_lossy().into_owned();
-        assert!(name.starts_with(".render.png.tmp-") && name.ends_with(".png"), "{name}");
-        assert_ne!(tmp, temp_path_for(Path::new("/some/dir/render.png")).unwrap());
+        assert!(
+            name.starts_with(".render.png.tmp-") && name.ends_with(".png"),
+            "{name}"
+        );
+        assert_ne!(
+            tmp,
+            temp_path_for(Path::new("/some/dir/render.png")).unwrap()
+        );
     }
 
     #[test]

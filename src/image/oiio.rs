@@ -22,8 +22,17 @@ struct RawImageInfo {
 extern "C" {
     fn hslt_oiio_free_string(s: *mut c_char);
     fn hslt_oiio_version() -> *mut c_char;
-    fn hslt_oiio_open(path: *const c_char, info: *mut RawImageInfo, err: *mut *mut c_char) -> *mut c_void;
-    fn hslt_oiio_read(handle: *mut c_void, out: *mut f32, out_len: usize, err: *mut *mut c_char) -> c_int;
+    fn hslt_oiio_open(
+        path: *const c_char,
+        info: *mut RawImageInfo,
+        err: *mut *mut c_char,
+    ) -> *mut c_void;
+    fn hslt_oiio_read(
+        handle: *mut c_void,
+        out: *mut f32,
+        out_len: usize,
+        err: *mut *mut c_char,
+    ) -> c_int;
     fn hslt_oiio_close(handle: *mut c_void);
     #[allow(clippy::too_many_arguments)]
     fn hslt_oiio_write(
@@ -63,7 +72,8 @@ fn path_to_cstring(path: &Path) -> anyhow::Result<CString> {
 }
 
 fn to_c_int(value: usize, what: &str) -> anyhow::Result<c_int> {
-    c_int::try_from(value).map_err(|_| anyhow::anyhow!("{what} {value} is too large for OpenImageIO"))
+    c_int::try_from(value)
+        .map_err(|_| anyhow::anyhow!("{what} {value} is too large for OpenImageIO"))
 }
 
 /// Version of the linked OpenImageIO library, e.g. "2.4.7".
@@ -104,7 +114,11 @@ pub fn read(path: &Path) -> anyhow::Result<(ImageBuf, ColorEncoding)> {
             info.channels
         );
     }
-    let (width, height, channels) = (info.width as usize, info.height as usize, info.channels as usize);
+    let (width, height, channels) = (
+        info.width as usize,
+        info.height as usize,
+        info.channels as usize,
+    );
     let len = width
         .checked_mul(height)
         .and_then(|n| n.checked_mul(channels))
@@ -133,17 +147,31 @@ pub fn read(path: &Path) -> anyhow::Result<(ImageBuf, ColorEncoding)> {
 pub fn write(path: &Path, img: &ImageBuf, meta: &Metadata) -> anyhow::Result<()> {
     let c_path = path_to_cstring(path)?;
     if img.data.len() != img.width * img.height * img.channels {
-        anyhow::bail!("{}: pixel buffer does not match {}x{}x{}", path.display(), img.width, img.height, img.channels);
+        anyhow::bail!(
+            "{}: pixel buffer does not match {}x{}x{}",
+            path.display(),
+            img.width,
+            img.height,
+            img.channels
+        );
     }
     let width = to_c_int(img.width, "width")?;
     let height = to_c_int(img.height, "height")?;
     let channels = to_c_int(img.channels, "channel count")?;
     let mut owned = Vec::with_capacity(meta.len() * 2);
     for (key, value) in meta {
-        let k = CString::new(key.as_str())
-            .map_err(|_| anyhow::anyhow!("{}: metadata key {key:?} contains a NUL byte", path.display()))?;
-        let v = CString::new(value.as_str())
-            .map_err(|_| anyhow::anyhow!("{}: metadata value of {key:?} contains a NUL byte", path.display()))?;
+        let k = CString::new(key.as_str()).map_err(|_| {
+            anyhow::anyhow!(
+                "{}: metadata key {key:?} contains a NUL byte",
+                path.display()
+            )
+        })?;
+        let v = CString::new(value.as_str()).map_err(|_| {
+            anyhow::anyhow!(
+                "{}: metadata value of {key:?} contains a NUL byte",
+                path.display()
+            )
+        })?;
         owned.push((k, v));
     }
     let keys: Vec<*const c_char> = owned.iter().map(|(k, _)| k.as_ptr()).collect();

@@ -127,7 +127,11 @@ char* hslt_oiio_version() {
 void* hslt_oiio_open(const char* path, HsltImageInfo* info, char** err) {
     try {
         configure_oiio_once();
-        std::unique_ptr<OIIO::ImageInput> in = OIIO::ImageInput::open(path);
+        // OIIO premultiplies unassociated-alpha files (PNG, TGA...) on read by default; hslt keeps
+        // the stored values, so ask for them untouched.
+        OIIO::ImageSpec config;
+        config.attribute("oiio:UnassociatedAlpha", 1);
+        std::unique_ptr<OIIO::ImageInput> in = OIIO::ImageInput::open(path, &config);
         if (!in) {
             report(err, global_error(), "OpenImageIO could not open the file");
             return nullptr;
@@ -238,6 +242,9 @@ int hslt_oiio_write(const char* path, const float* data, int width, int height, 
             spec.channelnames = {"Y"};
         }
         spec.attribute("oiio:ColorSpace", as_float ? "Linear" : "sRGB");
+        // Our alpha is straight (unassociated); without this OIIO's PNG writer would divide colour
+        // by alpha, assuming premultiplied input.
+        spec.attribute("oiio:UnassociatedAlpha", 1);
         for (int i = 0; i < n_meta; ++i) {
             spec.attribute(keys[i], values[i]);
         }
