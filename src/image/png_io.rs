@@ -25,7 +25,7 @@ pub fn write(path: &Path, img: &ImageBuf, meta: &Metadata) -> anyhow::Result<()>
     let mut encoder = png::Encoder::new(BufWriter::new(file), width, height);
     encoder.set_color(color);
     encoder.set_depth(png::BitDepth::Eight);
-    encoder.set_srgb(png::SrgbRenderingIntent::Perceptual);
+    encoder.set_source_srgb(png::SrgbRenderingIntent::Perceptual);
     for (key, value) in meta {
         // tEXt is Latin-1 only; iTXt carries UTF-8 and is what the PNG spec recommends for it.
         let result = if value.is_ascii() {
