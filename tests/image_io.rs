@@ -62,16 +62,14 @@ fn meta(pairs: &[(&str, &str)]) -> Metadata {
         .collect()
 }
 
+/// The public scenes beside the repository (`../shared/scenes`, as on CI), or `HSLT_SHARED_SCENES`.
+/// Missing scenes fail the test instead of skipping it.
 fn scenes_dir() -> Option<PathBuf> {
-    let dir = std::env::var_os("HSLT_SCENES")
+    let dir = std::env::var_os("HSLT_SHARED_SCENES")
         .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from("/work/shared/scenes"));
-    if dir.is_dir() {
-        Some(dir)
-    } else {
-        eprintln!("skipping: scene directory {} not found", dir.display());
-        None
-    }
+        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/scenes"));
+    assert!(dir.is_dir(), "scene directory {} not found (set HSLT_SHARED_SCENES)", dir.display());
+    Some(dir)
 }
 
 #[test]
