@@ -5,6 +5,8 @@
 pub mod embree;
 pub mod timed;
 
+pub use embree::{embree_version, set_flush_denormals, EmbreeScene};
+
 use crate::geometry::{Ray, TriangleMesh};
 
 /// The first intersection along a ray. `geom_id` indexes the mesh list given to the backend,
