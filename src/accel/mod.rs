@@ -25,7 +25,7 @@ pub trait RayQuery: Send + Sync {
     /// Short name for reports ("embree", "bvh").
     fn name(&self) -> &'static str;
 
-    /// Closest hit with `ray.tmin < t < ray.tmax`.
+    /// Closest hit with `ray.tmin < t < ray.tmax` (up to a few ulps: shorten shadow segments slightly).
     fn intersect(&self, ray: &Ray) -> Option<Hit>;
 
     /// True if anything lies on the ray with `ray.tmin < t < ray.tmax`.

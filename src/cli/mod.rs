@@ -118,6 +118,8 @@ fn thread_pool(threads: usize) -> anyhow::Result<rayon::ThreadPool> {
     rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
         .thread_name(|i| format!("hslt-worker-{i}"))
+        // Embree asks for flush-to-zero/denormals-are-zero in every thread that traces rays.
+        .start_handler(|_| crate::accel::set_flush_denormals())
         .build()
         .context("cannot start the worker threads")
 }
