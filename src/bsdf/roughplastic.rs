@@ -32,6 +32,7 @@ use crate::scene::{Props, SceneError};
 use crate::spectrum::Spectrum;
 use crate::texture::Texture;
 use glam::{Vec2, Vec3};
+use rayon::prelude::*;
 use std::collections::HashMap;
 use std::f32::consts::FRAC_1_PI;
 use std::sync::{Arc, Mutex, OnceLock};
@@ -51,14 +52,19 @@ impl CoatingTables {
         let distr = Microfacet::new(kind, alpha, alpha, true);
         let nodes_t = gauss_legendre(if eta > 1.0 { 32 } else { 128 });
         let nodes_r = gauss_legendre(if 1.0 / eta > 1.0 { 32 } else { 128 });
-        let mut external_transmittance = Vec::with_capacity(TRANSMITTANCE_RES);
-        let mut refl_sum = 0.0f64;
-        for i in 0..TRANSMITTANCE_RES {
-            let mu = (i as f32 / (TRANSMITTANCE_RES - 1) as f32).max(1e-6);
-            let wi = Vec3::new((1.0 - mu * mu).max(0.0).sqrt(), 0.0, mu);
-            external_transmittance.push(eval_transmittance(&distr, wi, eta, &nodes_t));
-            refl_sum += (eval_reflectance(&distr, wi, 1.0 / eta, &nodes_r) * mu) as f64;
-        }
+        // Each cosine is an independent 2D quadrature (up to 128² visible-normal samples): spread them.
+        let rows: Vec<(f32, f64)> = (0..TRANSMITTANCE_RES)
+            .into_par_iter()
+            .map(|i| {
+                let mu = (i as f32 / (TRANSMITTANCE_RES - 1) as f32).max(1e-6);
+                let wi = Vec3::new((1.0 - mu * mu).max(0.0).sqrt(), 0.0, mu);
+                let t = eval_transmittance(&distr, wi, eta, &nodes_t);
+                let r = eval_reflectance(&distr, wi, 1.0 / eta, &nodes_r) * mu;
+                (t, r as f64)
+            })
+            .collect();
+        let external_transmittance = rows.iter().map(|r| r.0).collect();
+        let refl_sum: f64 = rows.iter().map(|r| r.1).sum();
         CoatingTables {
             external_transmittance,
             internal_reflectance: (2.0 * refl_sum / TRANSMITTANCE_RES as f64) as f32,
