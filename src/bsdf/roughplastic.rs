@@ -255,3 +255,37 @@ impl Bsdf for RoughPlastic {
         self.distr.alpha_u
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::bsdf::fresnel::fresnel_diffuse_reflectance;
+
+    #[test]
+    fn smooth_limit_of_coating_tables() {
+        // Nearly smooth coating: T(μ) → 1 − F(μ) and R_int → the smooth internal Fdr.
+        let eta = 1.49f32;
+        let t = CoatingTables::get(MicrofacetKind::Ggx, 0.01, eta);
+        for mu in [1.0f32, 0.6, 0.3] {
+            let smooth = 1.0 - fresnel_dielectric(mu, eta).reflectance;
+            assert!(
+                (t.transmittance(mu) - smooth).abs() < 0.01,
+                "μ {mu}: {} vs {smooth}",
+                t.transmittance(mu)
+            );
+        }
+        let fdr = fresnel_diffuse_reflectance(1.0 / eta);
+        assert!(
+            (t.internal_reflectance - fdr).abs() < 0.03,
+            "{} vs {fdr}",
+            t.internal_reflectance
+        );
+        // Transmittance is a fraction for any roughness.
+        let rough = CoatingTables::get(MicrofacetKind::Beckmann, 0.5, eta);
+        assert!(rough
+            .external_transmittance
+            .iter()
+            .all(|&x| (0.0..=1.0).contains(&x)));
+        assert!(rough.internal_reflectance > 0.0 && rough.internal_reflectance < 1.0);
+    }
+}
