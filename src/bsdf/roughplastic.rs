@@ -32,6 +32,7 @@ use crate::scene::{Props, SceneError};
 use crate::spectrum::Spectrum;
 use crate::texture::Texture;
 use glam::{Vec2, Vec3};
+use rayon::prelude::*;
 use std::collections::HashMap;
 use std::f32::consts::FRAC_1_PI;
 use std::sync::{Arc, Mutex, OnceLock};
@@ -51,14 +52,19 @@ impl CoatingTables {
         let distr = Microfacet::new(kind, alpha, alpha, true);
         let nodes_t = gauss_legendre(if eta > 1.0 { 32 } else { 128 });
         let nodes_r = gauss_legendre(if 1.0 / eta > 1.0 { 32 } else { 128 });
-        let mut external_transmittance = Vec::with_capacity(TRANSMITTANCE_RES);
-        let mut refl_sum = 0.0f64;
-        for i in 0..TRANSMITTANCE_RES {
-            let mu = (i as f32 / (TRANSMITTANCE_RES - 1) as f32).max(1e-6);
-            let wi = Vec3::new((1.0 - mu * mu).max(0.0).sqrt(), 0.0, mu);
-            external_transmittance.push(eval_transmittance(&distr, wi, eta, &nodes_t));
-            refl_sum += (eval_reflectance(&distr, wi, 1.0 / eta, &nodes_r) * mu) as f64;
-        }
+        // Each cosine is an independent 2D quadrature (up to 128² visible-normal samples): spread them.
+        let rows: Vec<(f32, f64)> = (0..TRANSMITTANCE_RES)
+            .into_par_iter()
+            .map(|i| {
+                let mu = (i as f32 / (TRANSMITTANCE_RES - 1) as f32).max(1e-6);
+                let wi = Vec3::new((1.0 - mu * mu).max(0.0).sqrt(), 0.0, mu);
+                let t = eval_transmittance(&distr, wi, eta, &nodes_t);
+                let r = eval_reflectance(&distr, wi, 1.0 / eta, &nodes_r) * mu;
+                (t, r as f64)
+            })
+            .collect();
+        let external_transmittance = rows.iter().map(|r| r.0).collect();
+        let refl_sum: f64 = rows.iter().map(|r| r.1).sum();
         CoatingTables {
             external_transmittance,
             internal_reflectance: (2.0 * refl_sum / TRANSMITTANCE_RES as f64) as f32,
@@ -247,5 +253,39 @@ impl Bsdf for RoughPlastic {
 
     fn roughness(&self) -> f32 {
         self.distr.alpha_u
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::bsdf::fresnel::fresnel_diffuse_reflectance;
+
+    #[test]
+    fn smooth_limit_of_coating_tables() {
+        // Nearly smooth coating: T(μ) → 1 − F(μ) and R_int → the smooth internal Fdr.
+        let eta = 1.49f32;
+        let t = CoatingTables::get(MicrofacetKind::Ggx, 0.01, eta);
+        for mu in [1.0f32, 0.6, 0.3] {
+            let smooth = 1.0 - fresnel_dielectric(mu, eta).reflectance;
+            assert!(
+                (t.transmittance(mu) - smooth).abs() < 0.01,
+                "μ {mu}: {} vs {smooth}",
+                t.transmittance(mu)
+            );
+        }
+        let fdr = fresnel_diffuse_reflectance(1.0 / eta);
+        assert!(
+            (t.internal_reflectance - fdr).abs() < 0.03,
+            "{} vs {fdr}",
+            t.internal_reflectance
+        );
+        // Transmittance is a fraction for any roughness.
+        let rough = CoatingTables::get(MicrofacetKind::Beckmann, 0.5, eta);
+        assert!(rough
+            .external_transmittance
+            .iter()
+            .all(|&x| (0.0..=1.0).contains(&x)));
+        assert!(rough.internal_reflectance > 0.0 && rough.internal_reflectance < 1.0);
     }
 }
