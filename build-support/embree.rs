@@ -107,10 +107,9 @@ fn locate() -> Result<EmbreeInstall, String> {
     if let Some(found) = from_pkg_config() {
         return Ok(found);
     }
-    for (include, lib) in [
-        ("/usr/include/embree3", None),
-        ("/usr/local/include/embree3", Some("/usr/local/lib")),
-    ] {
+    for (include, lib) in
+        [("/usr/include/embree3", None), ("/usr/local/include/embree3", Some("/usr/local/lib"))]
+    {
         let header_dir = PathBuf::from(include);
         if header_dir.join("rtcore.h").is_file() {
             return Ok(EmbreeInstall {
@@ -139,16 +138,10 @@ fn from_embree_dir(dir: &Path) -> Result<EmbreeInstall, String> {
             header_dir.join("rtcore.h").display()
         ));
     }
-    let lib_dirs: Vec<PathBuf> = ["lib", "lib64"]
-        .iter()
-        .map(|l| dir.join(l))
-        .filter(|p| p.is_dir())
-        .collect();
+    let lib_dirs: Vec<PathBuf> =
+        ["lib", "lib64"].iter().map(|l| dir.join(l)).filter(|p| p.is_dir()).collect();
     if lib_dirs.is_empty() {
-        return Err(format!(
-            "EMBREE_DIR={} has include/embree3 but neither lib/ nor lib64/",
-            dir.display()
-        ));
+        return Err(format!("EMBREE_DIR={} has include/embree3 but neither lib/ nor lib64/", dir.display()));
     }
     Ok(EmbreeInstall {
         header_dir,
@@ -160,10 +153,8 @@ fn from_embree_dir(dir: &Path) -> Result<EmbreeInstall, String> {
 
 /// Debian ships no `embree3.pc`, so this usually finds nothing; source builds of Embree do install one.
 fn from_pkg_config() -> Option<EmbreeInstall> {
-    let output = Command::new("pkg-config")
-        .args(["--cflags-only-I", "--libs-only-L", "embree3"])
-        .output()
-        .ok()?;
+    let output =
+        Command::new("pkg-config").args(["--cflags-only-I", "--libs-only-L", "embree3"]).output().ok()?;
     if !output.status.success() {
         return None;
     }
@@ -246,8 +237,7 @@ impl EmbreeConfig {
     fn from_map(map: &BTreeMap<String, String>, what: &str) -> Result<EmbreeConfig, String> {
         let number = |key: &str| -> Result<u32, String> {
             let raw = resolve(map, key).ok_or_else(|| format!("{what} does not define {key}"))?;
-            raw.parse::<u32>()
-                .map_err(|_| format!("{what}: {key} is `{raw}`, expected an unsigned integer"))
+            raw.parse::<u32>().map_err(|_| format!("{what}: {key} is `{raw}`, expected an unsigned integer"))
         };
         let version_string = resolve(map, "RTC_VERSION_STRING")
             .ok_or_else(|| format!("{what} does not define RTC_VERSION_STRING"))?
@@ -268,9 +258,7 @@ impl EmbreeConfig {
     /// the ABI, so only major/minor version and the two layout macros count.
     pub fn abi_differences(&self, installed: &EmbreeConfig) -> Vec<String> {
         let mut out = Vec::new();
-        if (self.version_major, self.version_minor)
-            != (installed.version_major, installed.version_minor)
-        {
+        if (self.version_major, self.version_minor) != (installed.version_major, installed.version_minor) {
             out.push(format!(
                 "RTC_VERSION major.minor: bindings {}.{}, installed {}.{} (functions and structs may differ)",
                 self.version_major, self.version_minor, installed.version_major, installed.version_minor
@@ -307,11 +295,7 @@ impl EmbreeConfig {
         let _ = writeln!(s, "// RTC_VERSION_PATCH = {}", self.version_patch);
         let _ = writeln!(s, "// RTC_VERSION = {}", self.version);
         let _ = writeln!(s, "// RTC_VERSION_STRING = {}", self.version_string);
-        let _ = writeln!(
-            s,
-            "// RTC_MAX_INSTANCE_LEVEL_COUNT = {}",
-            self.max_instance_level_count
-        );
+        let _ = writeln!(s, "// RTC_MAX_INSTANCE_LEVEL_COUNT = {}", self.max_instance_level_count);
         let _ = writeln!(s, "// RTC_MIN_WIDTH = {}", self.min_width);
         let _ = writeln!(s, "// source_header = {}", source_header.display());
         let _ = writeln!(s, "// generator = {generator}");
@@ -393,14 +377,10 @@ fn generate_into_out_dir(install: &EmbreeInstall, installed: &EmbreeConfig) {
                 clang.full
             ))
         });
-    let generator = format!(
-        "bindgen 0.71 crate, rust_target 1.{msrv_minor}, {}",
-        clang.full
-    );
+    let generator = format!("bindgen 0.71 crate, rust_target 1.{msrv_minor}, {}", clang.full);
     let text = format!("{}\n{}", installed.stamp(&header, &generator), bindings);
     let path = out_dir.join("embree3.rs");
-    fs::write(&path, text)
-        .unwrap_or_else(|e| fail(&format!("cannot write {}: {e}", path.display())));
+    fs::write(&path, text).unwrap_or_else(|e| fail(&format!("cannot write {}: {e}", path.display())));
 }
 
 #[cfg(not(all(feature = "bindgen", not(test))))]

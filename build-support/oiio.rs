@@ -61,16 +61,10 @@ pub fn configure() {
 fn from_prefix(prefix: PathBuf) -> OiioLocation {
     let header = prefix.join("include/OpenImageIO/imageio.h");
     if !header.is_file() {
-        panic!(
-            "OIIO_DIR={} does not contain include/OpenImageIO/imageio.h",
-            prefix.display()
-        );
+        panic!("OIIO_DIR={} does not contain include/OpenImageIO/imageio.h", prefix.display());
     }
-    let lib_dirs: Vec<PathBuf> = ["lib", "lib64"]
-        .iter()
-        .map(|sub| prefix.join(sub))
-        .filter(|dir| dir.is_dir())
-        .collect();
+    let lib_dirs: Vec<PathBuf> =
+        ["lib", "lib64"].iter().map(|sub| prefix.join(sub)).filter(|dir| dir.is_dir()).collect();
     if lib_dirs.is_empty() {
         panic!("OIIO_DIR={} has neither lib/ nor lib64/", prefix.display());
     }

@@ -10,14 +10,10 @@ use build_embree::{parse_defines, EmbreeConfig, VENDORED_BINDINGS};
 use std::path::{Path, PathBuf};
 
 fn installed_config_header() -> PathBuf {
-    let candidates = std::env::var_os("EMBREE_DIR")
-        .map(|d| vec![Path::new(&d).join("include/embree3")])
-        .unwrap_or_else(|| {
-            vec![
-                PathBuf::from("/usr/include/embree3"),
-                PathBuf::from("/usr/local/include/embree3"),
-            ]
-        });
+    let candidates =
+        std::env::var_os("EMBREE_DIR").map(|d| vec![Path::new(&d).join("include/embree3")]).unwrap_or_else(
+            || vec![PathBuf::from("/usr/include/embree3"), PathBuf::from("/usr/local/include/embree3")],
+        );
     candidates
         .into_iter()
         .map(|d| d.join("rtcore_config.h"))
@@ -33,15 +29,10 @@ fn vendored_text() -> String {
 #[test]
 fn vendored_stamp_matches_installed_rtcore_config() {
     let header = installed_config_header();
-    let installed =
-        EmbreeConfig::from_config_header(&std::fs::read_to_string(&header).unwrap()).unwrap();
+    let installed = EmbreeConfig::from_config_header(&std::fs::read_to_string(&header).unwrap()).unwrap();
     let vendored = EmbreeConfig::from_stamp(&vendored_text()).unwrap();
     let differences = vendored.abi_differences(&installed);
-    assert!(
-        differences.is_empty(),
-        "vendored bindings vs {}: {differences:#?}",
-        header.display()
-    );
+    assert!(differences.is_empty(), "vendored bindings vs {}: {differences:#?}", header.display());
     assert_eq!(vendored.version_major, 3);
 }
 
@@ -62,17 +53,13 @@ fn stamp_agrees_with_the_constants_bindgen_emitted() {
     assert_eq!(constant("RTC_VERSION"), stamp.version);
     assert_eq!(constant("RTC_VERSION_MAJOR"), stamp.version_major);
     assert_eq!(constant("RTC_VERSION_MINOR"), stamp.version_minor);
-    assert_eq!(
-        constant("RTC_MAX_INSTANCE_LEVEL_COUNT"),
-        stamp.max_instance_level_count
-    );
+    assert_eq!(constant("RTC_MAX_INSTANCE_LEVEL_COUNT"), stamp.max_instance_level_count);
     assert_eq!(constant("RTC_MIN_WIDTH"), stamp.min_width);
 }
 
 #[test]
 fn config_parser_follows_macro_aliases_and_reports_each_difference() {
-    let text =
-        "#define RTC_VERSION_MAJOR 3\n#define RTC_VERSION_MINOR 12\n#define RTC_VERSION_PATCH 0\n\
+    let text = "#define RTC_VERSION_MAJOR 3\n#define RTC_VERSION_MINOR 12\n#define RTC_VERSION_PATCH 0\n\
                 #define RTC_VERSION 31200\n#define RTC_VERSION_STRING \"3.12.0\"\n\
                 #define RTC_MAX_INSTANCE_LEVEL_COUNT 2\n#define EMBREE_MIN_WIDTH 1\n\
                 #define RTC_MIN_WIDTH EMBREE_MIN_WIDTH\n#  define RTC_NAMESPACE_USE\n";

@@ -18,11 +18,7 @@ fn mesh(name: &str, positions: &[[f32; 3]], indices: &[[u32; 3]]) -> TriangleMes
 
 /// Right triangle in the plane z = 2 with p0 at the origin's projection, so (u, v) = (x, y).
 fn triangle_at_z2() -> TriangleMesh {
-    mesh(
-        "tri",
-        &[[0.0, 0.0, 2.0], [1.0, 0.0, 2.0], [0.0, 1.0, 2.0]],
-        &[[0, 1, 2]],
-    )
+    mesh("tri", &[[0.0, 0.0, 2.0], [1.0, 0.0, 2.0], [0.0, 1.0, 2.0]], &[[0, 1, 2]])
 }
 
 /// Axis-aligned cube [lo, hi]^3, 8 shared vertices, 12 outward-wound triangles.
@@ -69,10 +65,7 @@ fn single_triangle_distance_barycentrics_and_ids() {
         .expect("ray through the interior must hit");
     assert_eq!((hit.geom_id, hit.prim_id), (0, 0));
     assert!((hit.t - 3.0).abs() < 1e-6, "t = {}", hit.t);
-    assert!(
-        (hit.u - 0.2).abs() < 1e-6 && (hit.v - 0.3).abs() < 1e-6,
-        "{hit:?}"
-    );
+    assert!((hit.u - 0.2).abs() < 1e-6 && (hit.v - 0.3).abs() < 1e-6, "{hit:?}");
 
     // Oblique rays towards known barycentric points: Embree's (u, v) must reproduce the point with
     // p = (1-u-v) p0 + u p1 + v p2, and t must be the distance along the unnormalised direction.
@@ -83,25 +76,13 @@ fn single_triangle_distance_barycentrics_and_ids() {
             (u, v) = (1.0 - u, 1.0 - v);
         }
         let target = Vec3::new(u, v, 2.0);
-        let origin = Vec3::new(
-            rng.random_range(-3.0..3.0),
-            rng.random_range(-3.0..3.0),
-            rng.random_range(-4.0..-1.0),
-        );
+        let origin =
+            Vec3::new(rng.random_range(-3.0..3.0), rng.random_range(-3.0..3.0), rng.random_range(-4.0..-1.0));
         let scale = rng.random_range(0.5f32..4.0);
         let dir = (target - origin) / scale;
-        let hit = scene
-            .intersect(&ray(origin, dir))
-            .expect("aimed at the interior");
-        assert!(
-            (hit.t - scale).abs() < 1e-4 * scale,
-            "t {} vs {scale}",
-            hit.t
-        );
-        assert!(
-            (hit.u - u).abs() < 1e-4 && (hit.v - v).abs() < 1e-4,
-            "{hit:?} vs ({u}, {v})"
-        );
+        let hit = scene.intersect(&ray(origin, dir)).expect("aimed at the interior");
+        assert!((hit.t - scale).abs() < 1e-4 * scale, "t {} vs {scale}", hit.t);
+        assert!((hit.u - u).abs() < 1e-4 && (hit.v - v).abs() < 1e-4, "{hit:?} vs ({u}, {v})");
         assert!((hit_point(&tri, &hit) - target).length() < 1e-4);
     }
 
@@ -128,16 +109,10 @@ fn unit_cube_faces_from_outside_and_inside() {
             let mut origin = Vec3::splat(0.375);
             origin[axis] = 0.5 + sign * 2.5; // 2 units outside the face it faces
             let hit = scene.intersect(&ray(origin, dir)).unwrap();
-            assert!(
-                (hit.t - 2.0).abs() < 1e-6,
-                "axis {axis} sign {sign}: {hit:?}"
-            );
+            assert!((hit.t - 2.0).abs() < 1e-6, "axis {axis} sign {sign}: {hit:?}");
             let n = cube.geometric_normal(hit.prim_id as usize);
             // Outward normal of the face entered first points back at the origin.
-            assert!(
-                (n[axis] - sign).abs() < 1e-6,
-                "axis {axis} sign {sign}: normal {n}"
-            );
+            assert!((n[axis] - sign).abs() < 1e-6, "axis {axis} sign {sign}: normal {n}");
             let p = hit_point(&cube, &hit);
             assert!((p - ray(origin, dir).at(hit.t)).length() < 1e-5);
 
@@ -145,10 +120,7 @@ fn unit_cube_faces_from_outside_and_inside() {
             let inside = ray(Vec3::splat(0.375), -dir);
             let hit = scene.intersect(&inside).unwrap();
             let expected = if sign > 0.0 { 0.625 } else { 0.375 };
-            assert!(
-                (hit.t - expected).abs() < 1e-6,
-                "{hit:?} expected {expected}"
-            );
+            assert!((hit.t - expected).abs() < 1e-6, "{hit:?} expected {expected}");
         }
     }
 }
@@ -171,44 +143,25 @@ fn hits_outside_the_ray_interval_are_ignored() {
         (-5.0, 0.5, false),
     ];
     for (tmin, tmax, expected) in cases {
-        let r = Ray {
-            origin: o,
-            dir: d,
-            tmin,
-            tmax,
-        };
+        let r = Ray { origin: o, dir: d, tmin, tmax };
         assert_eq!(scene.occluded(&r), expected, "occluded {tmin}..{tmax}");
-        assert_eq!(
-            scene.intersect(&r).is_some(),
-            expected,
-            "intersect {tmin}..{tmax}"
-        );
+        assert_eq!(scene.intersect(&r).is_some(), expected, "intersect {tmin}..{tmax}");
         let mut occ = [!expected];
         scene.occluded_batch(&[r], &mut occ);
         assert_eq!(occ[0], expected, "occluded_batch {tmin}..{tmax}");
         let mut hits = [None];
         scene.intersect_batch(&[r], &mut hits);
-        assert_eq!(
-            hits[0].is_some(),
-            expected,
-            "intersect_batch {tmin}..{tmax}"
-        );
+        assert_eq!(hits[0].is_some(), expected, "intersect_batch {tmin}..{tmax}");
     }
 }
 
 /// Random triangle soup plus two cubes, with rays that start inside and outside, finite and infinite tmax.
 fn random_scene_and_rays(seed: u64, ray_count: usize) -> (Vec<TriangleMesh>, Vec<Ray>) {
     let mut rng = Pcg32::seed_from_u64(seed);
-    let mut soup = TriangleMesh {
-        name: "soup".into(),
-        ..Default::default()
-    };
+    let mut soup = TriangleMesh { name: "soup".into(), ..Default::default() };
     for i in 0..600u32 {
-        let c = Vec3::new(
-            rng.random_range(-2.0..2.0),
-            rng.random_range(-2.0..2.0),
-            rng.random_range(-2.0..2.0),
-        );
+        let c =
+            Vec3::new(rng.random_range(-2.0..2.0), rng.random_range(-2.0..2.0), rng.random_range(-2.0..2.0));
         for _ in 0..3 {
             soup.positions.push(
                 c + Vec3::new(
@@ -233,17 +186,8 @@ fn random_scene_and_rays(seed: u64, ray_count: usize) -> (Vec<TriangleMesh>, Vec
                 rng.random_range(-1.0..1.0),
                 rng.random_range(-1.0..1.0),
             );
-            let tmax = if rng.random_bool(0.5) {
-                f32::INFINITY
-            } else {
-                rng.random_range(0.1..6.0)
-            };
-            Ray {
-                origin,
-                dir,
-                tmin: rng.random_range(0.0..0.05),
-                tmax,
-            }
+            let tmax = if rng.random_bool(0.5) { f32::INFINITY } else { rng.random_range(0.1..6.0) };
+            Ray { origin, dir, tmin: rng.random_range(0.0..0.05), tmax }
         })
         .collect();
     (meshes, rays)
@@ -274,11 +218,7 @@ fn batches_agree_with_single_rays_for_every_batch_size() {
         rays[i].dir = Vec3::ZERO;
     }
     let scene = EmbreeScene::build(&meshes).unwrap();
-    eprintln!(
-        "Embree {} packet width {}",
-        embree_version(),
-        scene.packet_width()
-    );
+    eprintln!("Embree {} packet width {}", embree_version(), scene.packet_width());
     let single_hits: Vec<Option<Hit>> = rays.iter().map(|r| scene.intersect(r)).collect();
     let single_occ: Vec<bool> = rays.iter().map(|r| scene.occluded(r)).collect();
     let hit_count = single_hits.iter().filter(|h| h.is_some()).count();
@@ -293,11 +233,7 @@ fn batches_agree_with_single_rays_for_every_batch_size() {
     for batch in [1usize, 3, 17, 1000, rays.len()] {
         let mut hits = vec![None; rays.len()];
         let mut occ = vec![false; rays.len()];
-        for ((r, h), o) in rays
-            .chunks(batch)
-            .zip(hits.chunks_mut(batch))
-            .zip(occ.chunks_mut(batch))
-        {
+        for ((r, h), o) in rays.chunks(batch).zip(hits.chunks_mut(batch)).zip(occ.chunks_mut(batch)) {
             scene.intersect_batch(r, h);
             scene.occluded_batch(r, o);
         }
@@ -317,30 +253,15 @@ fn batches_agree_with_single_rays_for_every_batch_size() {
 
 #[test]
 fn geom_id_is_the_mesh_index_even_with_empty_meshes() {
-    let far_tri = mesh(
-        "far",
-        &[[0.0, 0.0, 10.0], [1.0, 0.0, 10.0], [0.0, 1.0, 10.0]],
-        &[[0, 1, 2]],
-    );
-    let empty = TriangleMesh {
-        name: "empty".into(),
-        ..Default::default()
-    };
-    let meshes = vec![
-        triangle_at_z2(),
-        empty.clone(),
-        far_tri,
-        mesh("vertices only", &[[0.0; 3]], &[]),
-    ];
+    let far_tri = mesh("far", &[[0.0, 0.0, 10.0], [1.0, 0.0, 10.0], [0.0, 1.0, 10.0]], &[[0, 1, 2]]);
+    let empty = TriangleMesh { name: "empty".into(), ..Default::default() };
+    let meshes = vec![triangle_at_z2(), empty.clone(), far_tri, mesh("vertices only", &[[0.0; 3]], &[])];
     let scene = EmbreeScene::build(&meshes).unwrap();
     assert_eq!(scene.mesh_count(), 4);
     let up = Vec3::new(0.0, 0.0, 1.0);
     let near = scene.intersect(&ray(Vec3::new(0.1, 0.1, 0.0), up)).unwrap();
     assert_eq!((near.geom_id, near.prim_id), (0, 0));
-    let past_near = Ray {
-        tmin: 3.0,
-        ..ray(Vec3::new(0.1, 0.1, 0.0), up)
-    };
+    let past_near = Ray { tmin: 3.0, ..ray(Vec3::new(0.1, 0.1, 0.0), up) };
     let far = scene.intersect(&past_near).unwrap();
     assert_eq!(far.geom_id, 2);
     assert!((far.t - 10.0).abs() < 1e-5);
@@ -414,11 +335,7 @@ fn rays_aimed_at_shared_edges_and_vertices_never_slip_through() {
             }
         }
     }
-    assert!(
-        rays.len() > candidates / 3,
-        "only {} crossing rays",
-        rays.len()
-    );
+    assert!(rays.len() > candidates / 3, "only {} crossing rays", rays.len());
     let mut slipped = Vec::new();
     for r in &rays {
         match scene.intersect(r) {
@@ -492,10 +409,7 @@ fn bad_meshes_are_errors_not_crashes() {
         .err()
         .expect("index 8 of 8 vertices must be rejected")
         .to_string();
-    assert!(
-        err.contains("'box'") && err.contains("triangle 5") && err.contains("index 8"),
-        "{err}"
-    );
+    assert!(err.contains("'box'") && err.contains("triangle 5") && err.contains("index 8"), "{err}");
 }
 
 #[test]
@@ -507,25 +421,13 @@ fn non_finite_rays_are_misses() {
         ray(Vec3::ZERO, Vec3::new(f32::NAN, 1.0, 0.0)),
         ray(Vec3::ZERO, Vec3::new(0.0, f32::NEG_INFINITY, 0.0)),
         ray(Vec3::ZERO, Vec3::ZERO),
-        Ray {
-            tmin: f32::NAN,
-            ..ray(Vec3::ZERO, Vec3::X)
-        },
+        Ray { tmin: f32::NAN, ..ray(Vec3::ZERO, Vec3::X) },
     ];
     for r in &bad {
         assert_eq!(scene.intersect(r), None, "{r:?}");
         assert!(!scene.occluded(r), "{r:?}");
     }
-    let mut hits = vec![
-        Some(Hit {
-            t: 0.0,
-            geom_id: 9,
-            prim_id: 9,
-            u: 0.0,
-            v: 0.0,
-        });
-        bad.len()
-    ];
+    let mut hits = vec![Some(Hit { t: 0.0, geom_id: 9, prim_id: 9, u: 0.0, v: 0.0 }); bad.len()];
     scene.intersect_batch(&bad, &mut hits);
     assert!(hits.iter().all(Option::is_none));
     let mut occ = vec![true; bad.len()];
@@ -553,10 +455,7 @@ fn trait_object_is_shareable_across_threads() {
                 })
             })
             .collect();
-        let got: Vec<Option<Hit>> = handles
-            .into_iter()
-            .flat_map(|h| h.join().unwrap())
-            .collect();
+        let got: Vec<Option<Hit>> = handles.into_iter().flat_map(|h| h.join().unwrap()).collect();
         for (i, (g, e)) in got.iter().zip(&expected).enumerate() {
             assert!(same_hit(g, e), "ray {i}: {g:?} vs {e:?}");
         }
@@ -570,9 +469,7 @@ fn runtime_version_and_packet_width_are_sane() {
     let scene = EmbreeScene::build(&[triangle_at_z2()]).unwrap();
     assert!([1, 4, 8, 16].contains(&scene.packet_width()));
     #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2")
-        && !std::arch::is_x86_feature_detected!("avx512f")
-    {
+    if std::arch::is_x86_feature_detected!("avx2") && !std::arch::is_x86_feature_detected!("avx512f") {
         // Debian builds Embree with AVX2 kernels, so an AVX2 machine must get 8-wide packets.
         assert_eq!(scene.packet_width(), 8);
     }

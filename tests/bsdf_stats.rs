@@ -18,9 +18,7 @@ fn make(ty: &str, params: &[(&str, PropValue)]) -> Arc<dyn Bsdf> {
     for (name, value) in params {
         p.set(name, value.clone(), SrcLoc::builtin());
     }
-    let loader = BsdfLoader {
-        base_dir: Path::new("."),
-    };
+    let loader = BsdfLoader { base_dir: Path::new(".") };
     bsdf::from_props(&p, &loader).unwrap_or_else(|e| panic!("{ty}: {e}"))
 }
 
@@ -35,10 +33,7 @@ fn rgb(r: f32, g: f32, b: f32) -> PropValue {
 }
 
 fn ctx(mode: TransportMode) -> BsdfContext {
-    BsdfContext {
-        mode,
-        uv: Vec2::new(0.3, 0.7),
-    }
+    BsdfContext { mode, uv: Vec2::new(0.3, 0.7) }
 }
 
 /// Incident direction with the given cosine, at a non-trivial azimuth (matters for anisotropy).
@@ -52,16 +47,12 @@ const NZ: usize = 32; // bins in cos θ over [-1, 1] (equal area)
 const NPHI: usize = 32;
 
 fn bin_of(w: Vec3) -> usize {
-    let z = ((w.z as f64 + 1.0) * 0.5 * NZ as f64)
-        .floor()
-        .clamp(0.0, NZ as f64 - 1.0) as usize;
+    let z = ((w.z as f64 + 1.0) * 0.5 * NZ as f64).floor().clamp(0.0, NZ as f64 - 1.0) as usize;
     let mut phi = (w.y as f64).atan2(w.x as f64);
     if phi < 0.0 {
         phi += 2.0 * PI;
     }
-    let p = (phi / (2.0 * PI) * NPHI as f64)
-        .floor()
-        .clamp(0.0, NPHI as f64 - 1.0) as usize;
+    let p = (phi / (2.0 * PI) * NPHI as f64).floor().clamp(0.0, NPHI as f64 - 1.0) as usize;
     z * NPHI + p
 }
 
@@ -100,19 +91,10 @@ fn integrate(
 ) -> f64 {
     let (z0, z1, p0, p1) = cell;
     let (zm, pm) = (0.5 * (z0 + z1), 0.5 * (p0 + p1));
-    let parts = [
-        (z0, zm, p0, pm),
-        (zm, z1, p0, pm),
-        (z0, zm, pm, p1),
-        (zm, z1, pm, p1),
-    ];
-    let vals: Vec<f64> = parts
-        .iter()
-        .map(|&(a, b, c, d)| gl4(pdf, a, b, c, d))
-        .collect();
+    let parts = [(z0, zm, p0, pm), (zm, z1, p0, pm), (z0, zm, pm, p1), (zm, z1, pm, p1)];
+    let vals: Vec<f64> = parts.iter().map(|&(a, b, c, d)| gl4(pdf, a, b, c, d)).collect();
     let refined: f64 = vals.iter().sum();
-    if max_depth == 0 || (min_depth == 0 && (refined - whole).abs() <= 1e-7 + 1e-4 * refined.abs())
-    {
+    if max_depth == 0 || (min_depth == 0 && (refined - whole).abs() <= 1e-7 + 1e-4 * refined.abs()) {
         return refined;
     }
     parts
@@ -131,14 +113,7 @@ struct Outcome {
 
 /// Draws `n` samples, checks every sample's weight and pdf against `eval`/`pdf`, and runs the
 /// chi-square test of the non-delta sample directions against the integrated `pdf`.
-fn chi2_test(
-    name: &str,
-    b: &dyn Bsdf,
-    wi: Vec3,
-    mode: TransportMode,
-    n: usize,
-    seed: u64,
-) -> Outcome {
+fn chi2_test(name: &str, b: &dyn Bsdf, wi: Vec3, mode: TransportMode, n: usize, seed: u64) -> Outcome {
     let c = ctx(mode);
     let mut sampler = Sampler::new(seed, 1, 2);
     let mut observed = vec![0.0f64; NZ * NPHI];
@@ -153,11 +128,7 @@ fn chi2_test(
             smp.wo.is_finite() && smp.weight.is_finite() && smp.pdf.is_finite(),
             "{name}: non-finite sample"
         );
-        assert!(
-            (smp.wo.length() - 1.0).abs() < 1e-3,
-            "{name}: wo not unit: {:?}",
-            smp.wo
-        );
+        assert!((smp.wo.length() - 1.0).abs() < 1e-3, "{name}: wo not unit: {:?}", smp.wo);
         assert!(smp.weight.min_element() >= 0.0 && smp.pdf > 0.0, "{name}");
         albedo += smp.weight.as_dvec3();
         if smp.lobe.is_delta() {
@@ -168,12 +139,7 @@ fn chi2_test(
         let pdf = b.pdf(&c, wi, smp.wo);
         let fval = b.eval(&c, wi, smp.wo);
         let rel = |a: f32, b: f32| (a - b).abs() <= 2e-3 * a.abs().max(b.abs()) + 1e-6;
-        assert!(
-            rel(pdf, smp.pdf),
-            "{name}: pdf() {pdf} vs sampled pdf {} at wo {:?}",
-            smp.pdf,
-            smp.wo
-        );
+        assert!(rel(pdf, smp.pdf), "{name}: pdf() {pdf} vs sampled pdf {} at wo {:?}", smp.pdf, smp.wo);
         let expected = fval * smp.wo.z.abs() / pdf;
         for ch in 0..3 {
             assert!(
@@ -189,22 +155,13 @@ fn chi2_test(
     let pdf_fn = |z: f64, phi: f64| b.pdf(&c, wi, dir(z, phi)) as f64;
     // Narrow lobes need finer quadrature: about one level per halving of α below 0.1.
     let alpha = b.roughness();
-    let min_depth = if alpha.is_finite() && alpha > 0.0 {
-        (0.1 / alpha).log2().ceil().clamp(0.0, 4.0) as u32
-    } else {
-        0
-    };
+    let min_depth =
+        if alpha.is_finite() && alpha > 0.0 { (0.1 / alpha).log2().ceil().clamp(0.0, 4.0) as u32 } else { 0 };
     let mut expected = vec![0.0f64; NZ * NPHI];
     for iz in 0..NZ {
-        let (z0, z1) = (
-            -1.0 + 2.0 * iz as f64 / NZ as f64,
-            -1.0 + 2.0 * (iz + 1) as f64 / NZ as f64,
-        );
+        let (z0, z1) = (-1.0 + 2.0 * iz as f64 / NZ as f64, -1.0 + 2.0 * (iz + 1) as f64 / NZ as f64);
         for ip in 0..NPHI {
-            let (p0, p1) = (
-                2.0 * PI * ip as f64 / NPHI as f64,
-                2.0 * PI * (ip + 1) as f64 / NPHI as f64,
-            );
+            let (p0, p1) = (2.0 * PI * ip as f64 / NPHI as f64, 2.0 * PI * (ip + 1) as f64 / NPHI as f64);
             let whole = gl4(&pdf_fn, z0, z1, p0, p1);
             let b_idx = iz * NPHI + ip;
             // Bins that received samples get the lobe-resolving minimum subdivision.
@@ -237,21 +194,14 @@ fn chi2_test(
     let chi2: f64 = cells.iter().map(|(o, e)| (o - e) * (o - e) / e).sum();
     let dof = (cells.len() as f64 - 1.0).max(1.0);
     let p_value = 1.0 - ChiSquared::new(dof).unwrap().cdf(chi2);
-    let mut contrib: Vec<(f64, f64, f64)> = cells
-        .iter()
-        .map(|(o, e)| ((o - e) * (o - e) / e, *o, *e))
-        .collect();
+    let mut contrib: Vec<(f64, f64, f64)> =
+        cells.iter().map(|(o, e)| ((o - e) * (o - e) / e, *o, *e)).collect();
     contrib.sort_by(|a, b| b.0.total_cmp(&a.0));
     let worst = format!(
         "chi2 {chi2:.1} dof {dof}, worst (contribution, observed, expected): {:?}",
         &contrib[..contrib.len().min(4)]
     );
-    Outcome {
-        worst,
-        p_value,
-        pdf_integral,
-        albedo: (albedo / n as f64).as_vec3(),
-    }
+    Outcome { worst, p_value, pdf_integral, albedo: (albedo / n as f64).as_vec3() }
 }
 
 const SIGNIFICANCE: f64 = 1e-3;
@@ -261,23 +211,10 @@ const DISTRIBUTIONS: [&str; 2] = ["beckmann", "ggx"];
 const COS_INCIDENT: [f32; 3] = [0.9, 0.5, 0.05];
 
 fn check(name: &str, o: &Outcome, check_albedo: bool) {
-    assert!(
-        o.p_value >= SIGNIFICANCE,
-        "{name}: chi-square p-value {:.3e}; {}",
-        o.p_value,
-        o.worst
-    );
-    assert!(
-        o.pdf_integral <= 1.0 + 2e-3,
-        "{name}: pdf integrates to {}",
-        o.pdf_integral
-    );
+    assert!(o.p_value >= SIGNIFICANCE, "{name}: chi-square p-value {:.3e}; {}", o.p_value, o.worst);
+    assert!(o.pdf_integral <= 1.0 + 2e-3, "{name}: pdf integrates to {}", o.pdf_integral);
     if check_albedo {
-        assert!(
-            o.albedo.max_element() <= 1.0 + 1e-2,
-            "{name}: albedo {:?} > 1",
-            o.albedo
-        );
+        assert!(o.albedo.max_element() <= 1.0 + 1e-2, "{name}: albedo {:?} > 1", o.albedo);
     }
 }
 
@@ -288,23 +225,12 @@ fn chi2_roughconductor() {
         for alpha in ALPHAS {
             let b = make(
                 "roughconductor",
-                &[
-                    ("distribution", s(dist)),
-                    ("alpha", f(alpha)),
-                    ("material", s("Au")),
-                ],
+                &[("distribution", s(dist)), ("alpha", f(alpha)), ("material", s("Au"))],
             );
             for c in COS_INCIDENT {
                 seed += 1;
                 let name = format!("roughconductor {dist} α={alpha} cosθi={c}");
-                let o = chi2_test(
-                    &name,
-                    &*b,
-                    incident(c),
-                    TransportMode::Radiance,
-                    N_SAMPLES,
-                    seed,
-                );
+                let o = chi2_test(&name, &*b, incident(c), TransportMode::Radiance, N_SAMPLES, seed);
                 check(&name, &o, true);
             }
         }
@@ -324,14 +250,7 @@ fn chi2_roughconductor() {
             for c in [0.7, 0.2] {
                 seed += 1;
                 let name = format!("roughconductor aniso {dist} visible={visible} cosθi={c}");
-                let o = chi2_test(
-                    &name,
-                    &*b,
-                    incident(c),
-                    TransportMode::Radiance,
-                    N_SAMPLES,
-                    seed,
-                );
+                let o = chi2_test(&name, &*b, incident(c), TransportMode::Radiance, N_SAMPLES, seed);
                 check(&name, &o, true);
             }
         }
@@ -343,10 +262,7 @@ fn chi2_roughdielectric() {
     let mut seed = 100;
     for dist in DISTRIBUTIONS {
         for alpha in ALPHAS {
-            let b = make(
-                "roughdielectric",
-                &[("distribution", s(dist)), ("alpha", f(alpha))],
-            );
+            let b = make("roughdielectric", &[("distribution", s(dist)), ("alpha", f(alpha))]);
             // Outside, plus from inside (where total internal reflection takes over at grazing angles).
             for c in [0.9, 0.5, 0.05, -0.8, -0.3] {
                 for mode in [TransportMode::Radiance, TransportMode::Importance] {
@@ -372,14 +288,7 @@ fn chi2_roughdielectric() {
         for c in [0.6, -0.6] {
             seed += 1;
             let name = format!("roughdielectric aniso visible={visible} cosθi={c}");
-            let o = chi2_test(
-                &name,
-                &*b,
-                incident(c),
-                TransportMode::Importance,
-                N_SAMPLES,
-                seed,
-            );
+            let o = chi2_test(&name, &*b, incident(c), TransportMode::Importance, N_SAMPLES, seed);
             check(&name, &o, true);
         }
     }
@@ -401,50 +310,24 @@ fn chi2_plastics_and_diffuse() {
             for c in COS_INCIDENT {
                 seed += 1;
                 let name = format!("roughplastic {dist} α={alpha} cosθi={c}");
-                let o = chi2_test(
-                    &name,
-                    &*b,
-                    incident(c),
-                    TransportMode::Radiance,
-                    N_SAMPLES / 2,
-                    seed,
-                );
+                let o = chi2_test(&name, &*b, incident(c), TransportMode::Radiance, N_SAMPLES / 2, seed);
                 check(&name, &o, true);
             }
         }
     }
     let others = [
-        (
-            "diffuse",
-            make("diffuse", &[("reflectance", rgb(0.9, 0.5, 0.1))]),
-        ),
-        (
-            "plastic",
-            make("plastic", &[("diffuse_reflectance", rgb(0.9, 0.5, 0.1))]),
-        ),
+        ("diffuse", make("diffuse", &[("reflectance", rgb(0.9, 0.5, 0.1))])),
+        ("plastic", make("plastic", &[("diffuse_reflectance", rgb(0.9, 0.5, 0.1))])),
         (
             "plastic nonlinear",
-            make(
-                "plastic",
-                &[
-                    ("nonlinear", PropValue::Bool(true)),
-                    ("int_ior", s("diamond")),
-                ],
-            ),
+            make("plastic", &[("nonlinear", PropValue::Bool(true)), ("int_ior", s("diamond"))]),
         ),
     ];
     for (label, b) in &others {
         for c in COS_INCIDENT {
             seed += 1;
             let name = format!("{label} cosθi={c}");
-            let o = chi2_test(
-                &name,
-                &**b,
-                incident(c),
-                TransportMode::Radiance,
-                N_SAMPLES / 2,
-                seed,
-            );
+            let o = chi2_test(&name, &**b, incident(c), TransportMode::Radiance, N_SAMPLES / 2, seed);
             check(&name, &o, true);
         }
     }
@@ -452,24 +335,11 @@ fn chi2_plastics_and_diffuse() {
     let inner = Props::new("bsdf", "roughconductor", SrcLoc::builtin());
     let mut p = Props::new("bsdf", "twosided", SrcLoc::builtin());
     p.set("", PropValue::Object(Arc::new(inner)), SrcLoc::builtin());
-    let b = bsdf::from_props(
-        &p,
-        &BsdfLoader {
-            base_dir: Path::new("."),
-        },
-    )
-    .unwrap();
+    let b = bsdf::from_props(&p, &BsdfLoader { base_dir: Path::new(".") }).unwrap();
     for c in [0.6f32, -0.6] {
         seed += 1;
         let name = format!("twosided roughconductor cosθi={c}");
-        let o = chi2_test(
-            &name,
-            &*b,
-            incident(c),
-            TransportMode::Radiance,
-            N_SAMPLES / 2,
-            seed,
-        );
+        let o = chi2_test(&name, &*b, incident(c), TransportMode::Radiance, N_SAMPLES / 2, seed);
         check(&name, &o, true);
     }
 }
@@ -488,24 +358,11 @@ fn direction_set() -> Vec<Vec3> {
 fn reflection_is_reciprocal() {
     let bsdfs = [
         make("diffuse", &[]),
-        make(
-            "roughconductor",
-            &[("alpha", f(0.3)), ("material", s("Cu"))],
-        ),
-        make(
-            "roughconductor",
-            &[
-                ("distribution", s("ggx")),
-                ("alpha_u", f(0.1)),
-                ("alpha_v", f(0.5)),
-            ],
-        ),
+        make("roughconductor", &[("alpha", f(0.3)), ("material", s("Cu"))]),
+        make("roughconductor", &[("distribution", s("ggx")), ("alpha_u", f(0.1)), ("alpha_v", f(0.5))]),
         make("roughplastic", &[("alpha", f(0.2))]),
         make("plastic", &[("nonlinear", PropValue::Bool(true))]),
-        make(
-            "roughdielectric",
-            &[("alpha", f(0.3)), ("distribution", s("ggx"))],
-        ),
+        make("roughdielectric", &[("alpha", f(0.3)), ("distribution", s("ggx"))]),
     ];
     let dirs = direction_set();
     for b in &bsdfs {
@@ -534,12 +391,7 @@ fn refraction_radiance_and_importance_are_adjoint() {
         for alpha in [0.05, 0.3, 0.8] {
             let b = make(
                 "roughdielectric",
-                &[
-                    ("distribution", s(dist)),
-                    ("alpha", f(alpha)),
-                    ("int_ior", f(1.7)),
-                    ("ext_ior", f(1.0)),
-                ],
+                &[("distribution", s(dist)), ("alpha", f(alpha)), ("int_ior", f(1.7)), ("ext_ior", f(1.0))],
             );
             let (rad, imp) = (ctx(TransportMode::Radiance), ctx(TransportMode::Importance));
             let mut nonzero = 0;
@@ -562,16 +414,12 @@ fn refraction_radiance_and_importance_are_adjoint() {
                     let f_imp = b.eval(&imp, wi, wo);
                     let scaled = f_rad * eta_o_over_i * eta_o_over_i;
                     assert!(
-                        (scaled - f_imp).abs().max_element()
-                            <= 1e-4 * f_imp.max_element().max(1e-3),
+                        (scaled - f_imp).abs().max_element() <= 1e-4 * f_imp.max_element().max(1e-3),
                         "{dist} α={alpha} wi {wi} wo {wo}: η²·f_rad {scaled} vs f_imp {f_imp}"
                     );
                 }
             }
-            assert!(
-                nonzero > 20,
-                "too few transmission pairs with non-zero f ({nonzero})"
-            );
+            assert!(nonzero > 20, "too few transmission pairs with non-zero f ({nonzero})");
         }
     }
 }
@@ -579,10 +427,7 @@ fn refraction_radiance_and_importance_are_adjoint() {
 #[test]
 fn smooth_dielectric_samples_exact_directions_with_fresnel_choice() {
     let eta = 1.5046f32; // bk7 / air default ratio is 1.5046/1.000277
-    let b = make(
-        "dielectric",
-        &[("int_ior", f(eta as f64)), ("ext_ior", f(1.0))],
-    );
+    let b = make("dielectric", &[("int_ior", f(eta as f64)), ("ext_ior", f(1.0))]);
     assert_eq!(b.eta(), eta);
     for c in [0.95f32, 0.5, 0.05, -0.9, -0.7, -0.5] {
         let wi = incident(c);
@@ -602,9 +447,8 @@ fn smooth_dielectric_samples_exact_directions_with_fresnel_choice() {
         for i in 0..n {
             let u_lobe = (i as f32 + 0.5) / n as f32;
             for mode in [TransportMode::Radiance, TransportMode::Importance] {
-                let smp = b
-                    .sample(&ctx(mode), wi, u_lobe, Vec2::new(0.3, 0.3))
-                    .expect("dielectric always samples");
+                let smp =
+                    b.sample(&ctx(mode), wi, u_lobe, Vec2::new(0.3, 0.3)).expect("dielectric always samples");
                 assert!(smp.lobe.is_delta());
                 if smp.lobe == BsdfLobe::DELTA_REFLECTION {
                     if mode == TransportMode::Radiance {
@@ -629,9 +473,7 @@ fn smooth_dielectric_samples_exact_directions_with_fresnel_choice() {
                     assert!((smp.weight.x - expected_weight).abs() < 1e-5);
                     // Reversibility: refracting back from wo returns wi.
                     let back = (0..200)
-                        .filter_map(|k| {
-                            b.sample(&ctx(mode), smp.wo, (k as f32 + 0.5) / 200.0, Vec2::ZERO)
-                        })
+                        .filter_map(|k| b.sample(&ctx(mode), smp.wo, (k as f32 + 0.5) / 200.0, Vec2::ZERO))
                         .find(|s| s.lobe == BsdfLobe::DELTA_TRANSMISSION)
                         .expect("the reverse refraction exists");
                     assert!((back.wo - wi).length() < 1e-4);
@@ -641,10 +483,7 @@ fn smooth_dielectric_samples_exact_directions_with_fresnel_choice() {
             }
         }
         let frac = reflected as f32 / n as f32;
-        assert!(
-            (frac - f_expected).abs() < 1e-3,
-            "cos {c}: reflected fraction {frac} vs F {f_expected}"
-        );
+        assert!((frac - f_expected).abs() < 1e-3, "cos {c}: reflected fraction {frac} vs F {f_expected}");
     }
 }
 
@@ -652,39 +491,18 @@ fn smooth_dielectric_samples_exact_directions_with_fresnel_choice() {
 fn conductor_and_plastic_delta_lobes() {
     // Gold at normal incidence: R = ((η-1)² + k²)/((η+1)² + k²) per channel.
     let b = make("conductor", &[("material", s("Au"))]);
-    let smp = b
-        .sample(&ctx(TransportMode::Radiance), Vec3::Z, 0.5, Vec2::ZERO)
-        .unwrap();
+    let smp = b.sample(&ctx(TransportMode::Radiance), Vec3::Z, 0.5, Vec2::ZERO).unwrap();
     let (eta, k) = hslt::bsdf::ior::conductor_preset("Au").unwrap();
-    let r = ((eta - Vec3::ONE) * (eta - Vec3::ONE) + k * k)
-        / ((eta + Vec3::ONE) * (eta + Vec3::ONE) + k * k);
-    assert!(
-        (smp.weight - r).abs().max_element() < 1e-5,
-        "{} vs {r}",
-        smp.weight
-    );
-    assert!(
-        smp.weight.x > smp.weight.z,
-        "gold reflects more red than blue"
-    );
+    let r = ((eta - Vec3::ONE) * (eta - Vec3::ONE) + k * k) / ((eta + Vec3::ONE) * (eta + Vec3::ONE) + k * k);
+    assert!((smp.weight - r).abs().max_element() < 1e-5, "{} vs {r}", smp.weight);
+    assert!(smp.weight.x > smp.weight.z, "gold reflects more red than blue");
     let wi = incident(0.3);
-    let smp = b
-        .sample(&ctx(TransportMode::Radiance), wi, 0.5, Vec2::ZERO)
-        .unwrap();
+    let smp = b.sample(&ctx(TransportMode::Radiance), wi, 0.5, Vec2::ZERO).unwrap();
     assert!((smp.wo - Vec3::new(-wi.x, -wi.y, wi.z)).length() < 1e-6);
-    assert!(
-        b.sample(&ctx(TransportMode::Radiance), -wi, 0.5, Vec2::ZERO)
-            .is_none(),
-        "one-sided"
-    );
+    assert!(b.sample(&ctx(TransportMode::Radiance), -wi, 0.5, Vec2::ZERO).is_none(), "one-sided");
     let mirror = make("conductor", &[]);
-    let smp = mirror
-        .sample(&ctx(TransportMode::Radiance), wi, 0.5, Vec2::ZERO)
-        .unwrap();
-    assert!(
-        (smp.weight - Vec3::ONE).abs().max_element() < 1e-6,
-        "material none is a perfect mirror"
-    );
+    let smp = mirror.sample(&ctx(TransportMode::Radiance), wi, 0.5, Vec2::ZERO).unwrap();
+    assert!((smp.weight - Vec3::ONE).abs().max_element() < 1e-6, "material none is a perfect mirror");
 
     // Plastic: delta lobe chosen with the documented probability and weighted F / p.
     let p = make("plastic", &[("diffuse_reflectance", rgb(0.5, 0.5, 0.5))]);
@@ -716,65 +534,33 @@ fn roughness_eta_and_lobes_are_reported() {
     assert_eq!(make("diffuse", &[]).roughness(), f32::INFINITY);
     assert_eq!(make("dielectric", &[]).roughness(), 0.0);
     assert_eq!(make("plastic", &[]).roughness(), 0.0);
-    assert_eq!(
-        make(
-            "roughconductor",
-            &[("alpha_u", f(0.2)), ("alpha_v", f(0.05))]
-        )
-        .roughness(),
-        0.05
-    );
+    assert_eq!(make("roughconductor", &[("alpha_u", f(0.2)), ("alpha_v", f(0.05))]).roughness(), 0.05);
     assert_eq!(make("roughplastic", &[]).roughness(), 0.1);
-    let d = make(
-        "roughdielectric",
-        &[("int_ior", s("water")), ("ext_ior", s("vacuum"))],
-    );
+    let d = make("roughdielectric", &[("int_ior", s("water")), ("ext_ior", s("vacuum"))]);
     assert!((d.eta() - 1.333).abs() < 1e-6);
     assert!((make("dielectric", &[]).eta() - 1.5046 / 1.000277).abs() < 1e-6);
-    assert_eq!(
-        make("roughconductor", &[("alpha", f(0.0))]).roughness(),
-        1e-4,
-        "α clamps to 1e-4"
-    );
+    assert_eq!(make("roughconductor", &[("alpha", f(0.0))]).roughness(), 1e-4, "α clamps to 1e-4");
     assert!(d.lobes().contains(BsdfLobe::GLOSSY_TRANSMISSION) && !d.lobes().is_delta());
     assert!(make("plastic", &[]).lobes().is_delta() && make("plastic", &[]).lobes().has_smooth());
 }
 
 #[test]
 fn bad_parameters_are_located_errors() {
-    let loader = BsdfLoader {
-        base_dir: Path::new("."),
-    };
+    let loader = BsdfLoader { base_dir: Path::new(".") };
     let at = |ty: &str, params: &[(&str, PropValue)]| {
         let mut p = Props::new("bsdf", ty, SrcLoc::new(Path::new("scene.xml"), 4, 2));
         for (i, (name, value)) in params.iter().enumerate() {
-            p.set(
-                name,
-                value.clone(),
-                SrcLoc::new(Path::new("scene.xml"), 5 + i as u32, 3),
-            );
+            p.set(name, value.clone(), SrcLoc::new(Path::new("scene.xml"), 5 + i as u32, 3));
         }
         bsdf::from_props(&p, &loader).unwrap_err().to_string()
     };
     assert!(at("diffuse", &[("reflectanse", f(0.3))]).contains("unknown parameter 'reflectanse'"));
-    assert!(at("roughconductor", &[("distribution", s("phong"))])
-        .contains("invalid distribution 'phong'"));
-    assert!(
-        at("conductor", &[("material", s("Unobtainium"))]).contains("unknown conductor material")
-    );
-    assert!(at(
-        "roughdielectric",
-        &[("alpha", f(0.1)), ("alpha_u", f(0.1)), ("alpha_v", f(0.2))]
-    )
-    .contains("either 'alpha'"));
-    assert!(
-        at("dielectric", &[("int_ior", s("glas"))]).contains("unknown index of refraction 'glas'")
-    );
-    assert!(at(
-        "roughdielectric",
-        &[("int_ior", f(1.0)), ("ext_ior", f(1.0))]
-    )
-    .contains("must differ"));
+    assert!(at("roughconductor", &[("distribution", s("phong"))]).contains("invalid distribution 'phong'"));
+    assert!(at("conductor", &[("material", s("Unobtainium"))]).contains("unknown conductor material"));
+    assert!(at("roughdielectric", &[("alpha", f(0.1)), ("alpha_u", f(0.1)), ("alpha_v", f(0.2))])
+        .contains("either 'alpha'"));
+    assert!(at("dielectric", &[("int_ior", s("glas"))]).contains("unknown index of refraction 'glas'"));
+    assert!(at("roughdielectric", &[("int_ior", f(1.0)), ("ext_ior", f(1.0))]).contains("must differ"));
     assert!(at("twosided", &[]).contains("nested <bsdf>"));
     assert!(at("velvet", &[]).contains("unsupported BSDF type 'velvet'"));
     let e = at("plastic", &[("int_ior", f(1.5)), ("nonlinear", f(1.0))]);
@@ -815,18 +601,12 @@ fn check_finite(b: &dyn Bsdf, wi: Vec3, wo: Vec3, u_lobe: f32, u: Vec2) {
     for mode in [TransportMode::Radiance, TransportMode::Importance] {
         let c = ctx(mode);
         let fv = b.eval(&c, wi, wo);
-        assert!(
-            fv.is_finite() && fv.min_element() >= 0.0,
-            "{b:?} eval({wi}, {wo}) = {fv}"
-        );
+        assert!(fv.is_finite() && fv.min_element() >= 0.0, "{b:?} eval({wi}, {wo}) = {fv}");
         let p = b.pdf(&c, wi, wo);
         assert!(p.is_finite() && p >= 0.0, "{b:?} pdf({wi}, {wo}) = {p}");
         if let Some(smp) = b.sample(&c, wi, u_lobe, u) {
             assert!(
-                smp.wo.is_finite()
-                    && smp.weight.is_finite()
-                    && smp.pdf.is_finite()
-                    && smp.pdf > 0.0,
+                smp.wo.is_finite() && smp.weight.is_finite() && smp.pdf.is_finite() && smp.pdf > 0.0,
                 "{b:?} sample({wi}) = {smp:?}"
             );
             assert!(smp.weight.min_element() >= 0.0 && smp.eta.is_finite() && smp.eta > 0.0);

@@ -116,7 +116,8 @@ fn render_writes_exr_with_metadata_and_png() {
     assert_eq!(get("hslt.seed").as_deref(), Some("9"));
     assert_eq!(get("hslt.integrator").as_deref(), Some("pt"));
     assert_eq!(get("hslt.spp").as_deref(), Some("4"));
-    let leftovers: Vec<_> = std::fs::read_dir(&dir).unwrap().filter_map(|e| e.ok()).map(|e| e.file_name()).collect();
+    let leftovers: Vec<_> =
+        std::fs::read_dir(&dir).unwrap().filter_map(|e| e.ok()).map(|e| e.file_name()).collect();
     assert_eq!(leftovers.len(), 2, "temporary files left behind: {leftovers:?}");
 }
 

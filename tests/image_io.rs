@@ -56,10 +56,7 @@ fn test_image(width: usize, height: usize, channels: usize, salt: u32) -> ImageB
 }
 
 fn meta(pairs: &[(&str, &str)]) -> Metadata {
-    pairs
-        .iter()
-        .map(|(k, v)| (k.to_string(), v.to_string()))
-        .collect()
+    pairs.iter().map(|(k, v)| (k.to_string(), v.to_string())).collect()
 }
 
 /// The public scenes beside the repository (`../shared/scenes`, as on CI), or `HSLT_SHARED_SCENES`.
@@ -101,11 +98,7 @@ fn exr_round_trip_grey_and_rgba_layouts() {
         let path = dir.path(&format!("c{channels}.exr"));
         let img = test_image(8, 5, channels, channels as u32);
         write_image(&path, &img, &Metadata::new()).unwrap();
-        assert_eq!(
-            read_image(&path, false).unwrap(),
-            img,
-            "{channels} channels"
-        );
+        assert_eq!(read_image(&path, false).unwrap(), img, "{channels} channels");
     }
 }
 
@@ -117,11 +110,7 @@ fn multi_layer_exr_round_trip() {
     let s2t1 = test_image(16, 9, 3, 11);
     let s1t2 = test_image(16, 9, 3, 12);
     let written = meta(&[("integrator", "bdpt"), ("spp", "64")]);
-    let layers = [
-        ("main", &main),
-        ("strategy.s2t1", &s2t1),
-        ("strategy.s1t2", &s1t2),
-    ];
+    let layers = [("main", &main), ("strategy.s2t1", &s2t1), ("strategy.s1t2", &s1t2)];
     let report = write_exr_layers(&path, &layers, &written).unwrap();
     assert_eq!(report.non_finite_replaced, 0);
 
@@ -133,10 +122,7 @@ fn multi_layer_exr_round_trip() {
     }
     // The plain reader returns the first layer, i.e. the main image.
     assert_eq!(read_image(&path, false).unwrap(), main);
-    assert_eq!(
-        read_exr_metadata(&path).unwrap(),
-        meta(&[("integrator", "bdpt"), ("spp", "64")])
-    );
+    assert_eq!(read_exr_metadata(&path).unwrap(), meta(&[("integrator", "bdpt"), ("spp", "64")]));
 }
 
 #[test]
@@ -162,11 +148,7 @@ fn multi_layer_exr_rejects_bad_layers_without_leaving_files() {
 fn reserved_or_duplicate_exr_metadata_is_refused() {
     let dir = TempDir::new("exr-meta");
     let img = test_image(4, 4, 3, 3);
-    for bad in [
-        meta(&[("channels", "x")]),
-        meta(&[("spp", "1"), ("spp", "2")]),
-        meta(&[("", "x")]),
-    ] {
+    for bad in [meta(&[("channels", "x")]), meta(&[("spp", "1"), ("spp", "2")]), meta(&[("", "x")])] {
         let err = write_image(&dir.path("m.exr"), &img, &bad).unwrap_err();
         assert!(format!("{err:#}").contains("m.exr"), "{err:#}");
     }
@@ -193,10 +175,7 @@ fn non_finite_values_are_zeroed_counted_and_recorded() {
         }
     }
     let recorded = read_exr_metadata(&path).unwrap();
-    assert!(
-        recorded.contains(&(NON_FINITE_KEY.to_string(), "3".to_string())),
-        "{recorded:?}"
-    );
+    assert!(recorded.contains(&(NON_FINITE_KEY.to_string(), "3".to_string())), "{recorded:?}");
 }
 
 #[test]
@@ -217,20 +196,14 @@ fn png_round_trip_within_srgb_quantisation() {
     assert_eq!((linear.width, linear.height, linear.channels), (64, 4, 3));
     for (i, (&orig, &got)) in img.data.iter().zip(&linear.data).enumerate() {
         let encoded_error = (linear_to_srgb(orig.clamp(0.0, 1.0)) - linear_to_srgb(got)).abs();
-        assert!(
-            encoded_error <= 0.5 / 255.0 + 1e-5,
-            "value {i}: wrote {orig}, read {got}"
-        );
+        assert!(encoded_error <= 0.5 / 255.0 + 1e-5, "value {i}: wrote {orig}, read {got}");
     }
 
     // Undecoded values are exactly the 8-bit codes of our own tonemap.
     let raw = read_image(&path, false).unwrap();
     let codes: Vec<u8> = raw.data.iter().map(|v| (v * 255.0).round() as u8).collect();
     assert_eq!(codes, img.to_srgb8());
-    assert!(raw
-        .data
-        .iter()
-        .all(|v| (v * 255.0 - (v * 255.0).round()).abs() < 1e-3));
+    assert!(raw.data.iter().all(|v| (v * 255.0 - (v * 255.0).round()).abs() < 1e-3));
 }
 
 #[test]
@@ -242,16 +215,8 @@ fn png_with_alpha_keeps_alpha_linear() {
     write_image(&path, &img, &Metadata::new()).unwrap();
     let back = read_image(&path, true).unwrap();
     assert_eq!(back.channels, 4);
-    assert!(
-        (back.data[3] - 64.0 / 255.0).abs() < 1e-6,
-        "alpha {}",
-        back.data[3]
-    );
-    assert!(
-        (back.data[0] - srgb_to_linear(188.0 / 255.0)).abs() < 1e-6,
-        "colour {}",
-        back.data[0]
-    );
+    assert!((back.data[3] - 64.0 / 255.0).abs() < 1e-6, "alpha {}", back.data[3]);
+    assert!((back.data[0] - srgb_to_linear(188.0 / 255.0)).abs() < 1e-6, "colour {}", back.data[0]);
 }
 
 #[test]
@@ -278,28 +243,16 @@ fn failed_writes_name_the_file_and_leave_nothing() {
     let img = test_image(4, 4, 3, 7);
 
     let missing = dir.path("no/such/dir/out.exr");
-    let err = format!(
-        "{:#}",
-        write_image(&missing, &img, &Metadata::new()).unwrap_err()
-    );
+    let err = format!("{:#}", write_image(&missing, &img, &Metadata::new()).unwrap_err());
     assert!(err.contains("no/such/dir/out.exr"), "{err}");
 
     let unknown = dir.path("out.xyz");
-    let err = format!(
-        "{:#}",
-        write_image(&unknown, &img, &Metadata::new()).unwrap_err()
-    );
-    assert!(
-        err.contains("out.xyz") && err.contains(".png") && err.contains(".exr"),
-        "{err}"
-    );
+    let err = format!("{:#}", write_image(&unknown, &img, &Metadata::new()).unwrap_err());
+    assert!(err.contains("out.xyz") && err.contains(".png") && err.contains(".exr"), "{err}");
 
     let mut broken = img.clone();
     broken.data.pop();
-    let err = format!(
-        "{:#}",
-        write_image(&dir.path("short.png"), &broken, &Metadata::new()).unwrap_err()
-    );
+    let err = format!("{:#}", write_image(&dir.path("short.png"), &broken, &Metadata::new()).unwrap_err());
     assert!(err.contains("short.png"), "{err}");
 
     assert!(dir.entries().is_empty(), "left behind: {:?}", dir.entries());
@@ -316,10 +269,7 @@ fn reading_bad_files_gives_errors_naming_them() {
         let err = format!("{:#}", read_image(&path, true).unwrap_err());
         assert!(err.contains(name), "{err}");
     }
-    let err = format!(
-        "{:#}",
-        read_exr_metadata(&dir.path("garbage.png")).unwrap_err()
-    );
+    let err = format!("{:#}", read_exr_metadata(&dir.path("garbage.png")).unwrap_err());
     assert!(err.contains("garbage.png"), "{err}");
 }
 
@@ -330,32 +280,13 @@ fn tungsten_reference_exrs_read_as_plausible_images() {
     for scene in ["cornell-box", "veach-ajar", "veach-bidir", "veach-mis"] {
         let path = scenes.join(scene).join("TungstenRender.exr");
         let img = read_image(&path, true).unwrap();
-        assert!(
-            img.width >= 64 && img.height >= 64,
-            "{scene}: {}x{}",
-            img.width,
-            img.height
-        );
-        assert!(
-            img.channels == 3 || img.channels == 4,
-            "{scene}: {} channels",
-            img.channels
-        );
+        assert!(img.width >= 64 && img.height >= 64, "{scene}: {}x{}", img.width, img.height);
+        assert!(img.channels == 3 || img.channels == 4, "{scene}: {} channels", img.channels);
         assert_eq!(img.count_non_finite(), 0, "{scene}");
-        let colour: Vec<f32> = img
-            .data
-            .chunks(img.channels)
-            .flat_map(|p| p[..3].iter().copied())
-            .collect();
+        let colour: Vec<f32> = img.data.chunks(img.channels).flat_map(|p| p[..3].iter().copied()).collect();
         let mean = colour.iter().map(|&v| f64::from(v)).sum::<f64>() / colour.len() as f64;
-        assert!(
-            mean > 1e-3 && mean < 50.0,
-            "{scene}: implausible mean {mean}"
-        );
-        assert!(
-            colour.iter().all(|&v| v >= 0.0),
-            "{scene}: negative radiance"
-        );
+        assert!(mean > 1e-3 && mean < 50.0, "{scene}: implausible mean {mean}");
+        assert!(colour.iter().all(|&v| v >= 0.0), "{scene}: negative radiance");
         checked += 1;
     }
     assert_eq!(checked, 4);
@@ -366,12 +297,7 @@ mod with_oiio {
     use super::*;
 
     fn assert_same_dims(path: &Path, a: &ImageBuf, b: &ImageBuf) {
-        assert_eq!(
-            (a.width, a.height, a.channels),
-            (b.width, b.height, b.channels),
-            "{}",
-            path.display()
-        );
+        assert_eq!((a.width, a.height, a.channels), (b.width, b.height, b.channels), "{}", path.display());
     }
 
     #[test]
@@ -394,11 +320,7 @@ mod with_oiio {
                 assert_same_dims(&path, &linear, &raw);
                 assert!(linear.width > 0 && linear.height > 0);
                 assert_eq!(linear.channels, 3, "{}", path.display());
-                assert!(
-                    linear.data.iter().all(|&v| (0.0..=1.0).contains(&v)),
-                    "{}",
-                    path.display()
-                );
+                assert!(linear.data.iter().all(|&v| (0.0..=1.0).contains(&v)), "{}", path.display());
                 // Decoding sRGB darkens every mid-tone, so the linear mean must be below the raw one.
                 let mean = |img: &ImageBuf| {
                     img.data.iter().map(|&v| f64::from(v)).sum::<f64>() / img.data.len() as f64
@@ -410,15 +332,11 @@ mod with_oiio {
                 count += 1;
             }
         }
-        assert!(
-            count >= 3,
-            "expected the three JPEG textures, found {count}"
-        );
+        assert!(count >= 3, "expected the three JPEG textures, found {count}");
     }
 
     fn extension_is(path: &Path, ext: &str) -> bool {
-        path.extension()
-            .is_some_and(|e| e.eq_ignore_ascii_case(ext))
+        path.extension().is_some_and(|e| e.eq_ignore_ascii_case(ext))
     }
 
     #[test]
@@ -427,9 +345,7 @@ mod with_oiio {
         let path = scenes.join("veach-ajar/textures/cherry-wood-texture.jpg");
         let reference = read_image(&path, true).unwrap();
         std::thread::scope(|s| {
-            let handles: Vec<_> = (0..4)
-                .map(|_| s.spawn(|| read_image(&path, true).unwrap()))
-                .collect();
+            let handles: Vec<_> = (0..4).map(|_| s.spawn(|| read_image(&path, true).unwrap())).collect();
             for h in handles {
                 assert_eq!(h.join().unwrap(), reference);
             }
@@ -442,11 +358,7 @@ mod with_oiio {
         let img = test_image(12, 7, 3, 8);
         let tiff = dir.path("out.tiff");
         write_image(&tiff, &img, &meta(&[("seed", "9")])).unwrap();
-        assert_eq!(
-            read_image(&tiff, true).unwrap(),
-            img,
-            "TIFF stores linear float32"
-        );
+        assert_eq!(read_image(&tiff, true).unwrap(), img, "TIFF stores linear float32");
 
         let hdr = dir.path("out.hdr");
         write_image(&hdr, &img, &Metadata::new()).unwrap();
@@ -459,10 +371,7 @@ mod with_oiio {
                 assert!((a - b).abs() <= scale / 128.0 + 1e-6, "{a} vs {b}");
             }
         }
-        assert_eq!(
-            dir.entries(),
-            vec!["out.hdr".to_string(), "out.tiff".to_string()]
-        );
+        assert_eq!(dir.entries(), vec!["out.hdr".to_string(), "out.tiff".to_string()]);
     }
 
     #[test]
@@ -478,10 +387,7 @@ mod with_oiio {
         assert_eq!((back.width, back.height, back.channels), (16, 16, 3));
         // JPEG is lossy, but a flat grey block survives to within a couple of 8-bit codes.
         for &v in &back.data {
-            assert!(
-                (linear_to_srgb(v) - linear_to_srgb(0.2)).abs() < 3.0 / 255.0,
-                "{v}"
-            );
+            assert!((linear_to_srgb(v) - linear_to_srgb(0.2)).abs() < 3.0 / 255.0, "{v}");
         }
     }
 }
@@ -496,10 +402,7 @@ mod without_oiio {
         let dir = TempDir::new("no-oiio");
         let img = test_image(4, 4, 3, 9);
         for name in ["a.jpg", "a.tiff", "a.hdr"] {
-            let err = format!(
-                "{:#}",
-                write_image(&dir.path(name), &img, &Metadata::new()).unwrap_err()
-            );
+            let err = format!("{:#}", write_image(&dir.path(name), &img, &Metadata::new()).unwrap_err());
             assert!(err.contains(name) && err.contains("oiio"), "{err}");
         }
         assert!(dir.entries().is_empty(), "left behind: {:?}", dir.entries());
@@ -516,23 +419,15 @@ fn exr_reader_accepts_half_and_prefixed_channels() {
     let (w, h) = (5usize, 3usize);
     let value = |x: usize, y: usize, c: usize| (x + 10 * y) as f32 * 0.1 + c as f32;
     // Half-float channels under a "diffuse." prefix plus an unrelated float channel "Z".
-    let plane = |c: usize| {
-        FlatSamples::F16(
-            (0..w * h)
-                .map(|p| f16::from_f32(value(p % w, p / w, c)))
-                .collect(),
-        )
-    };
+    let plane =
+        |c: usize| FlatSamples::F16((0..w * h).map(|p| f16::from_f32(value(p % w, p / w, c))).collect());
     let channels = AnyChannels::sort(SmallVec::from_vec(vec![
         AnyChannel::new("diffuse.R", plane(0)),
         AnyChannel::new("diffuse.G", plane(1)),
         AnyChannel::new("diffuse.B", plane(2)),
         AnyChannel::new("Z", FlatSamples::F32(vec![7.0; w * h])),
     ]));
-    Image::from_channels((w, h), channels)
-        .write()
-        .to_file(&path)
-        .unwrap();
+    Image::from_channels((w, h), channels).write().to_file(&path).unwrap();
 
     let img = read_image(&path, true).unwrap();
     assert_eq!((img.width, img.height, img.channels), (w, h, 3));

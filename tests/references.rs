@@ -2,13 +2,13 @@
 //! scenes (made by scripts/make-mitsuba-references.py, same XML) and the Tungsten references that
 //! ship with the shared public scenes. See tests/common for the statistical test.
 //!
-//! Threshold: the χ² per degree of freedom of block differences must stay below 2.0. With a few
-//! hundred blocks, an unbiased renderer gives 1 ± 0.1, so 2.0 is never reached by noise, while a
-//! 2% bias in a bright region already exceeds it.
+//! Threshold: the χ² per degree of freedom of block differences must stay below 1.5. With a few
+//! hundred blocks an unbiased renderer gives 1 ± 0.1 (σ = sqrt(2/dof)), so noise stays far from 1.5,
+//! while a bias of a few standard errors in a fraction of the blocks exceeds it.
 
 mod common;
 
-use hslt::cli::{load_scene, render_scene};
+use hslt::cli::{load_scene, render_scene, render_scene_film};
 use hslt::image::read_image;
 use hslt::integrators::IntegratorKind;
 use std::path::{Path, PathBuf};
@@ -28,31 +28,48 @@ fn shared_scene(name: &str) -> PathBuf {
     p
 }
 
-fn check_against_reference(
-    scene: &Path,
-    defines: &[(&str, &str)],
-    reference: &Path,
+/// How one reference comparison is set up.
+struct Check<'a> {
+    defines: &'a [(&'a str, &'a str)],
     spp: u32,
     block: (usize, usize),
+    /// Image rows compared (all when `None`).
+    rows: Option<std::ops::Range<usize>>,
     ref_noise_ratio: f64,
     model_tolerance: f64,
-) {
-    let s = load_scene(scene, defines).unwrap_or_else(|e| panic!("{}: {e:#}", scene.display()));
+}
+
+fn check_against_reference(scene: &Path, reference: &Path, c: Check) {
+    let s = load_scene(scene, c.defines).unwrap_or_else(|e| panic!("{}: {e:#}", scene.display()));
     let reference = read_image(reference, false).unwrap();
-    let (a, sa) = render_scene(&s, IntegratorKind::Path, spp, 1);
-    let (b, _) = render_scene(&s, IntegratorKind::Path, spp, 2);
-    assert_eq!(sa.invalid_samples, 0);
-    let c = common::compare(&a, &b, &reference, block, ref_noise_ratio, model_tolerance);
+    let (film, stats) = render_scene_film(&s, IntegratorKind::Path, c.spp, 1);
+    assert_eq!(stats.invalid_samples, 0);
+    let rows = c.rows.unwrap_or(0..film.height);
+    let cmp = common::compare(
+        &film.to_image(),
+        &film.variance_image(),
+        &reference,
+        c.block,
+        rows,
+        c.ref_noise_ratio,
+        c.model_tolerance,
+    );
     eprintln!(
         "{}: flux ratio {:.4}, block relMSE {:.2e}, chi2/dof {:.2} over {} blocks",
         scene.display(),
-        c.flux_ratio,
-        c.block_rel_mse,
-        c.chi2_per_dof,
-        c.blocks
+        cmp.flux_ratio,
+        cmp.block_rel_mse,
+        cmp.chi2_per_dof,
+        cmp.blocks
     );
-    assert!(c.chi2_per_dof < 2.0, "{}: chi2/dof {:.2} (flux ratio {:.4})", scene.display(), c.chi2_per_dof, c.flux_ratio);
-    assert!((c.flux_ratio - 1.0).abs() < 0.02, "{}: flux ratio {:.4}", scene.display(), c.flux_ratio);
+    assert!(
+        cmp.chi2_per_dof < 1.5,
+        "{}: chi2/dof {:.2} (flux ratio {:.4})",
+        scene.display(),
+        cmp.chi2_per_dof,
+        cmp.flux_ratio
+    );
+    assert!((cmp.flux_ratio - 1.0).abs() < 0.02, "{}: flux ratio {:.4}", scene.display(), cmp.flux_ratio);
 }
 
 #[test]
@@ -60,12 +77,15 @@ fn cornell_box_matches_mitsuba() {
     // Reference: 4096 spp, so its variance is 256/4096 of ours; both renderers share the model exactly.
     check_against_reference(
         &root().join("scenes/cornell-box/scene.xml"),
-        &[("resx", "64"), ("resy", "64")],
         &root().join("tests/references/mitsuba/cornell-box.exr"),
-        256,
-        (4, 4),
-        256.0 / 4096.0,
-        0.005,
+        Check {
+            defines: &[("resx", "64"), ("resy", "64")],
+            spp: 256,
+            block: (4, 4),
+            rows: None,
+            ref_noise_ratio: 256.0 / 4096.0,
+            model_tolerance: 0.003,
+        },
     );
 }
 
@@ -75,26 +95,57 @@ fn materials_scene_matches_mitsuba() {
     // are analytic, hence a 1% model allowance.
     check_against_reference(
         &root().join("scenes/materials/scene.xml"),
-        &[("resx", "64"), ("resy", "48")],
         &root().join("tests/references/mitsuba/materials.exr"),
-        512,
-        (4, 4),
-        512.0 / 8192.0,
-        0.01,
+        Check {
+            defines: &[("resx", "64"), ("resy", "48")],
+            spp: 512,
+            block: (4, 4),
+            rows: None,
+            ref_noise_ratio: 512.0 / 8192.0,
+            model_tolerance: 0.01,
+        },
     );
 }
 
 #[test]
 fn shared_cornell_box_matches_tungsten_at_its_resolution() {
     let dir = shared_scene("cornell-box");
-    // 1024² at 16 spp, compared in 32×32 blocks; Tungsten's own noise is taken as that of 64 spp.
-    check_against_reference(&dir.join("scene.xml"), &[], &dir.join("TungstenRender.exr"), 16, (32, 32), 0.25, 0.01);
+    // 1024² at 8 spp, compared in 32×32 blocks (8192 samples each). Tungsten's own noise is taken as
+    // that of 32 spp; 1% allows for model differences between the renderers (Mitsuba 3 and Tungsten
+    // agree to a flux ratio of 1.0005 on this scene).
+    check_against_reference(
+        &dir.join("scene.xml"),
+        &dir.join("TungstenRender.exr"),
+        Check {
+            defines: &[],
+            spp: 8,
+            block: (32, 32),
+            rows: None,
+            ref_noise_ratio: 0.25,
+            model_tolerance: 0.01,
+        },
+    );
 }
 
 #[test]
 fn shared_veach_mis_matches_tungsten_at_its_resolution() {
     let dir = shared_scene("veach-mis");
-    check_against_reference(&dir.join("scene.xml"), &[], &dir.join("TungstenRender.exr"), 16, (40, 40), 0.25, 0.02);
+    // Tungsten rendered this scene with direct lighting only: in Mitsuba's convention that is
+    // max_depth = 2, while the XML port says 3. Mitsuba 3.9.1 at max_depth 2 matches the Tungsten image
+    // to 1% in every block, and at 3 it is up to 30% brighter on the diffuse wall and floor, exactly as
+    // we are; so the comparison uses max_depth = 2.
+    check_against_reference(
+        &dir.join("scene.xml"),
+        &dir.join("TungstenRender.exr"),
+        Check {
+            defines: &[("max_depth", "2")],
+            spp: 16,
+            block: (40, 40),
+            rows: None,
+            ref_noise_ratio: 0.25,
+            model_tolerance: 0.01,
+        },
+    );
 }
 
 #[test]

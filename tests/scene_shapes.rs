@@ -51,17 +51,11 @@ fn check_mesh(m: &TriangleMesh, what: &str) {
     assert!(m.positions.iter().all(|p| p.is_finite()), "{what}");
     for t in 0..m.triangle_count() {
         let ng = m.geometric_normal(t);
-        assert!(
-            (ng.length() - 1.0).abs() < 1e-3,
-            "{what}: triangle {t} ng {ng:?}"
-        );
+        assert!((ng.length() - 1.0).abs() < 1e-3, "{what}: triangle {t} ng {ng:?}");
         if let Some(ns) = &m.normals {
             let [a, b, c] = m.indices[t];
             let avg = ns[a as usize] + ns[b as usize] + ns[c as usize];
-            assert!(
-                avg.dot(ng) > 0.0,
-                "{what}: triangle {t} shading vs geometric"
-            );
+            assert!(avg.dot(ng) > 0.0, "{what}: triangle {t} shading vs geometric");
         }
     }
     if let Some(ns) = &m.normals {
@@ -87,16 +81,9 @@ fn all_shapes_of_shared_scenes_load() {
             let loaded = load_shape(shape, &scene_dir).unwrap_or_else(|e| panic!("{name}: {e}"));
             let what = format!("{name}/{}", loaded.mesh.name);
             check_mesh(&loaded.mesh, &what);
-            assert!(
-                loaded.warnings.iter().all(|w| !w.contains("re-wound")),
-                "{what}: {:?}",
-                loaded.warnings
-            );
+            assert!(loaded.warnings.iter().all(|w| !w.contains("re-wound")), "{what}: {:?}", loaded.warnings);
             if shape.bool("face_normals", false).unwrap() {
-                assert!(
-                    loaded.mesh.normals.is_none(),
-                    "{what}: face_normals drops normals"
-                );
+                assert!(loaded.mesh.normals.is_none(), "{what}: face_normals drops normals");
             }
             n += 1;
         }
@@ -109,10 +96,7 @@ fn shared_scene_specifics() {
     let Some(dir) = shared_scenes() else { return };
     // veach-mis: the 0.05-radius light sphere keeps its area within 1e-3.
     let scene = hslt::scene::xml::parse_file(&dir.join("veach-mis/scene.xml"), &[]).unwrap();
-    let small = scene
-        .objects_with_tag("shape")
-        .find(|s| s.id.as_deref() == Some("Null_0003"))
-        .unwrap();
+    let small = scene.objects_with_tag("shape").find(|s| s.id.as_deref() == Some("Null_0003")).unwrap();
     let m = load_shape(small, &dir.join("veach-mis")).unwrap().mesh;
     let r = 0.05f32;
     assert!((total_area(&m) / (4.0 * PI * r * r) - 1.0).abs() < 1e-3);
@@ -121,10 +105,7 @@ fn shared_scene_specifics() {
 
     // veach-ajar teapot (binary PLY with normals and uvs; uvs not flipped for PLY).
     let scene = hslt::scene::xml::parse_file(&dir.join("veach-ajar/scene.xml"), &[]).unwrap();
-    let pot = scene
-        .objects_with_tag("shape")
-        .find(|s| s.id.as_deref() == Some("Pot2_0001"))
-        .unwrap();
+    let pot = scene.objects_with_tag("shape").find(|s| s.id.as_deref() == Some("Pot2_0001")).unwrap();
     let m = load_shape(pot, &dir.join("veach-ajar")).unwrap().mesh;
     assert!(m.normals.is_some() && m.uvs.is_some());
     assert!(m.triangle_count() > 10_000, "{}", m.triangle_count());
@@ -144,10 +125,7 @@ fn sphere_area_within_1e3() {
         check_mesh(m, "sphere");
         let r = radius * scale;
         let rel = total_area(m) / (4.0 * PI * r * r) - 1.0;
-        assert!(
-            rel.abs() < 1e-3,
-            "r={r}: relative area error {rel} at {rings}x{segments}"
-        );
+        assert!(rel.abs() < 1e-3, "r={r}: relative area error {rel} at {rings}x{segments}");
         // Analytic normals: radial from the (transformed) centre.
         let centre = Vec3::new(1.0, -2.0, 3.0) * scale;
         let ns = m.normals.as_ref().unwrap();
@@ -209,15 +187,11 @@ fn cube_faces_point_outwards_with_unit_square_uvs() {
     let ns = m.normals.as_ref().unwrap();
     for t in 0..12 {
         let [a, b, c] = m.indices[t];
-        let centroid =
-            (m.positions[a as usize] + m.positions[b as usize] + m.positions[c as usize]) / 3.0;
+        let centroid = (m.positions[a as usize] + m.positions[b as usize] + m.positions[c as usize]) / 3.0;
         let ng = m.geometric_normal(t);
         // Outward, and along the axis of the centroid's largest coordinate.
         let axis = centroid.abs().max_element();
-        assert!(
-            (ng.dot(centroid) - axis).abs() < 1e-5,
-            "triangle {t}: {ng:?} {centroid:?}"
-        );
+        assert!((ng.dot(centroid) - axis).abs() < 1e-5, "triangle {t}: {ng:?} {centroid:?}");
         assert!(ng.dot(centroid) > 0.0, "triangle {t} points inwards");
         assert_eq!(ns[a as usize], ng);
     }
@@ -230,14 +204,11 @@ fn cube_faces_point_outwards_with_unit_square_uvs() {
         }
     }
     // flip_normals makes it an inward-facing box.
-    let s =
-        load_xml("<shape type=\"cube\"><boolean name=\"flip_normals\" value=\"true\"/></shape>")
-            .unwrap();
+    let s = load_xml("<shape type=\"cube\"><boolean name=\"flip_normals\" value=\"true\"/></shape>").unwrap();
     check_mesh(&s.mesh, "flipped cube");
     let t0 = &s.mesh;
     let [a, b, c] = t0.indices[0];
-    let centroid =
-        (t0.positions[a as usize] + t0.positions[b as usize] + t0.positions[c as usize]) / 3.0;
+    let centroid = (t0.positions[a as usize] + t0.positions[b as usize] + t0.positions[c as usize]) / 3.0;
     assert!(t0.geometric_normal(0).dot(centroid) < 0.0);
 }
 
@@ -270,37 +241,14 @@ fn obj_uvs_flip_by_default_and_quads_fan() {
     assert_eq!(m.name, "quad.obj");
     let uvs = m.uvs.as_ref().unwrap();
     // vt 1 0.75 belongs to vertex (1, 1): flipped to v = 0.25 by default.
-    let k = m
-        .positions
-        .iter()
-        .position(|p| *p == Vec3::new(1.0, 1.0, 0.0))
-        .unwrap();
-    assert!(
-        (uvs[k] - Vec2::new(1.0, 0.25)).length() < 1e-6,
-        "{:?}",
-        uvs[k]
-    );
-    let s = mesh_file(
-        "obj",
-        "quad.obj",
-        "<boolean name=\"flip_tex_coords\" value=\"false\"/>",
-    )
-    .unwrap();
-    let k = s
-        .mesh
-        .positions
-        .iter()
-        .position(|p| *p == Vec3::new(1.0, 1.0, 0.0))
-        .unwrap();
+    let k = m.positions.iter().position(|p| *p == Vec3::new(1.0, 1.0, 0.0)).unwrap();
+    assert!((uvs[k] - Vec2::new(1.0, 0.25)).length() < 1e-6, "{:?}", uvs[k]);
+    let s = mesh_file("obj", "quad.obj", "<boolean name=\"flip_tex_coords\" value=\"false\"/>").unwrap();
+    let k = s.mesh.positions.iter().position(|p| *p == Vec3::new(1.0, 1.0, 0.0)).unwrap();
     assert!((s.mesh.uvs.as_ref().unwrap()[k] - Vec2::new(1.0, 0.75)).length() < 1e-6);
     // The file's normals are kept; face_normals drops them.
     assert!(m.normals.is_some());
-    let s = mesh_file(
-        "obj",
-        "quad.obj",
-        "<boolean name=\"face_normals\" value=\"true\"/>",
-    )
-    .unwrap();
+    let s = mesh_file("obj", "quad.obj", "<boolean name=\"face_normals\" value=\"true\"/>").unwrap();
     assert!(s.mesh.normals.is_none());
 }
 
@@ -316,20 +264,11 @@ fn obj_without_normals_gets_smooth_outward_normals() {
 
 #[test]
 fn mirrored_mesh_keeps_geometric_and_shading_normals_together() {
-    let s = mesh_file(
-        "obj",
-        "quad.obj",
-        "<transform name=\"to_world\"><scale x=\"-1\"/></transform>",
-    )
-    .unwrap();
+    let s =
+        mesh_file("obj", "quad.obj", "<transform name=\"to_world\"><scale x=\"-1\"/></transform>").unwrap();
     let m = &s.mesh;
     check_mesh(m, "mirrored quad");
-    assert!(m
-        .normals
-        .as_ref()
-        .unwrap()
-        .iter()
-        .all(|n| (*n - Vec3::Z).length() < 1e-6));
+    assert!(m.normals.as_ref().unwrap().iter().all(|n| (*n - Vec3::Z).length() < 1e-6));
     assert!(s.warnings.is_empty(), "{:?}", s.warnings);
     // Non-uniform scale: normals use the inverse transpose and stay unit length.
     let s = load_xml(
@@ -337,12 +276,7 @@ fn mirrored_mesh_keeps_geometric_and_shading_normals_together() {
     )
     .unwrap();
     check_mesh(&s.mesh, "squashed mirrored sphere");
-    for (p, n) in s
-        .mesh
-        .positions
-        .iter()
-        .zip(s.mesh.normals.as_ref().unwrap())
-    {
+    for (p, n) in s.mesh.positions.iter().zip(s.mesh.normals.as_ref().unwrap()) {
         // The outward normal of the ellipsoid x²/9 + y² + z²/0.25 = 1 is ∝ (x/9, y, z/0.25).
         let g = Vec3::new(p.x / 9.0, p.y, p.z / 0.25).normalize();
         assert!((g - *n).length() < 1e-3, "{p:?}: {n:?} vs {g:?}");
@@ -360,13 +294,7 @@ fn ply_ascii_quads_fan_st_uvs_and_rewinding() {
     let uvs = m.uvs.as_ref().unwrap();
     assert_eq!(uvs[2], Vec2::new(1.0, 1.0));
     assert_eq!(uvs[4], Vec2::new(0.5, 0.5));
-    assert!(
-        s.warnings
-            .iter()
-            .any(|w| w.contains("re-wound 1 triangles")),
-        "{:?}",
-        s.warnings
-    );
+    assert!(s.warnings.iter().any(|w| w.contains("re-wound 1 triangles")), "{:?}", s.warnings);
 }
 
 #[test]
@@ -379,12 +307,7 @@ fn ply_binary_both_endiannesses() {
         assert_eq!(m.triangle_count(), 2);
         assert!((total_area(m) - 1.0).abs() < 1e-6);
         // No normals in the file: smooth normals are computed (all +z for a flat square).
-        assert!(m
-            .normals
-            .as_ref()
-            .unwrap()
-            .iter()
-            .all(|n| (*n - Vec3::Z).length() < 1e-6));
+        assert!(m.normals.as_ref().unwrap().iter().all(|n| (*n - Vec3::Z).length() < 1e-6));
         let uvs = m.uvs.as_ref().unwrap();
         for (p, uv) in m.positions.iter().zip(uvs) {
             assert_eq!(*uv, p.truncate(), "{file}");
@@ -413,10 +336,7 @@ fn truncated_ply_is_a_clear_error() {
 fn nan_vertex_obj_names_file_and_vertex() {
     let e = mesh_file("obj", "nan_vertex.obj", "").unwrap_err();
     let msg = e.to_string();
-    assert!(
-        msg.contains("nan_vertex.obj") && msg.contains("vertex 3") && msg.contains("line 4"),
-        "{msg}"
-    );
+    assert!(msg.contains("nan_vertex.obj") && msg.contains("vertex 3") && msg.contains("line 4"), "{msg}");
 }
 
 #[test]
@@ -445,39 +365,25 @@ fn bad_obj_indices_error() {
 fn missing_mesh_file_names_path_and_shape_line() {
     let e = mesh_file("obj", "nope/missing.obj", "").unwrap_err();
     let msg = e.to_string();
-    assert!(
-        msg.contains("missing.obj") && msg.contains("not found"),
-        "{msg}"
-    );
+    assert!(msg.contains("missing.obj") && msg.contains("not found"), "{msg}");
     // The <shape> element is on line 2 of the inline scene.
     assert_eq!(e.loc.line, 2, "{msg}");
-    assert!(e
-        .element
-        .as_deref()
-        .unwrap()
-        .contains("<shape type=\"obj\">"));
+    assert!(e.element.as_deref().unwrap().contains("<shape type=\"obj\">"));
 }
 
 #[test]
 fn shape_parameters_are_checked() {
-    let e = load_xml("<shape type=\"rectangle\"><float name=\"radius\" value=\"2\"/></shape>")
-        .unwrap_err();
+    let e = load_xml("<shape type=\"rectangle\"><float name=\"radius\" value=\"2\"/></shape>").unwrap_err();
     assert!(e.message.contains("unknown parameter 'radius'"), "{e}");
-    let e = load_xml("<shape type=\"sphere\"><float name=\"radius\" value=\"-1\"/></shape>")
-        .unwrap_err();
+    let e = load_xml("<shape type=\"sphere\"><float name=\"radius\" value=\"-1\"/></shape>").unwrap_err();
     assert!(e.message.contains("radius"), "{e}");
-    let e = load_xml(
-        "<shape type=\"cube\"><transform name=\"to_world\"><scale x=\"0\"/></transform></shape>",
-    )
-    .unwrap_err();
+    let e =
+        load_xml("<shape type=\"cube\"><transform name=\"to_world\"><scale x=\"0\"/></transform></shape>")
+            .unwrap_err();
     assert!(e.message.contains("singular"), "{e}");
     // Direct Props (as a plugin factory would build them) work too.
     let mut p = Props::new("shape", "disk", SrcLoc::builtin());
-    p.set(
-        "to_world",
-        PropValue::Transform(Mat4::from_translation(Vec3::Z)),
-        SrcLoc::builtin(),
-    );
+    p.set("to_world", PropValue::Transform(Mat4::from_translation(Vec3::Z)), SrcLoc::builtin());
     let s = load_shape(&p, Path::new(".")).unwrap();
     assert!(s.mesh.positions.iter().all(|q| (q.z - 1.0).abs() < 1e-6));
     assert_eq!(s.mesh.name, "disk");

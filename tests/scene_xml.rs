@@ -8,9 +8,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 fn data(rel: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("tests/data/scene")
-        .join(rel)
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/scene").join(rel)
 }
 
 /// The public scenes beside the repository (`../shared/scenes`, as on CI), or `HSLT_SHARED_SCENES`.
@@ -54,10 +52,7 @@ fn shared_scenes_parse_with_expected_counts() {
         let shape_list = top(&scene, "shape");
         assert_eq!(shape_list.len(), shapes, "{name} shapes");
         assert_eq!(top(&scene, "bsdf").len(), bsdfs, "{name} bsdfs");
-        let n_emitters: usize = shape_list
-            .iter()
-            .map(|s| s.objects_with_tag("emitter").count())
-            .sum();
+        let n_emitters: usize = shape_list.iter().map(|s| s.objects_with_tag("emitter").count()).sum();
         assert_eq!(n_emitters, emitters, "{name} emitters");
         assert_eq!(top(&scene, "integrator").len(), 1);
         let integrator = top(&scene, "integrator")[0];
@@ -70,14 +65,8 @@ fn shared_scenes_parse_with_expected_counts() {
             let b: Vec<_> = s.objects_with_tag("bsdf").collect();
             assert_eq!(b.len(), 1, "{name} {:?}", s.id);
             let id = b[0].id.as_deref().unwrap();
-            let declared = top(&scene, "bsdf")
-                .into_iter()
-                .find(|d| d.id.as_deref() == Some(id))
-                .unwrap();
-            assert!(
-                Arc::ptr_eq(b[0], declared),
-                "ref to {id} must share, not copy"
-            );
+            let declared = top(&scene, "bsdf").into_iter().find(|d| d.id.as_deref() == Some(id)).unwrap();
+            assert!(Arc::ptr_eq(b[0], declared), "ref to {id} must share, not copy");
         }
     }
 }
@@ -102,39 +91,23 @@ fn cornell_box_values_and_locations() {
     let left = top(&scene, "bsdf")[0];
     assert_eq!(left.id.as_deref(), Some("LeftWallBSDF"));
     let inner = left.objects_with_tag("bsdf").next().unwrap();
-    assert_eq!(
-        inner.rgb("reflectance", Vec3::ZERO).unwrap(),
-        Vec3::new(0.63, 0.065, 0.05)
-    );
-    let light = top(&scene, "shape")
-        .into_iter()
-        .find(|s| s.id.as_deref() == Some("Light"))
-        .unwrap();
+    assert_eq!(inner.rgb("reflectance", Vec3::ZERO).unwrap(), Vec3::new(0.63, 0.065, 0.05));
+    let light = top(&scene, "shape").into_iter().find(|s| s.id.as_deref() == Some("Light")).unwrap();
     let em = light.objects_with_tag("emitter").next().unwrap();
-    assert_eq!(
-        em.rgb("radiance", Vec3::ZERO).unwrap(),
-        Vec3::new(17.0, 12.0, 4.0)
-    );
+    assert_eq!(em.rgb("radiance", Vec3::ZERO).unwrap(), Vec3::new(17.0, 12.0, 4.0));
 }
 
 #[test]
 fn defines_override_defaults() {
     let Some(dir) = shared_scenes() else { return };
-    let defines = vec![
-        ("spp".to_string(), "16".to_string()),
-        ("integrator".to_string(), "bdpt".to_string()),
-    ];
+    let defines = vec![("spp".to_string(), "16".to_string()), ("integrator".to_string(), "bdpt".to_string())];
     let scene = parse_file(&dir.join("veach-mis/scene.xml"), &defines).unwrap();
     let sensor = top(&scene, "sensor")[0];
     let sampler = sensor.objects_with_tag("sampler").next().unwrap();
     assert_eq!(sampler.int("sample_count", 0).unwrap(), 16);
     let integrator = top(&scene, "integrator")[0];
     assert_eq!(integrator.plugin_type, "bdpt");
-    assert_eq!(
-        integrator.int("max_depth", 0).unwrap(),
-        3,
-        "untouched default"
-    );
+    assert_eq!(integrator.int("max_depth", 0).unwrap(), 3, "untouched default");
 }
 
 #[test]
@@ -145,11 +118,7 @@ fn undefined_parameter_names_it_and_suggests_define() {
     assert!(msg.contains("$sample_count"), "{msg}");
     assert!(msg.contains("-D sample_count=value"), "{msg}");
     // ...and the define makes it parse.
-    let ok = parse_file(
-        &data("bad/undefined_param.xml"),
-        &[("sample_count".into(), "9".into())],
-    )
-    .unwrap();
+    let ok = parse_file(&data("bad/undefined_param.xml"), &[("sample_count".into(), "9".into())]).unwrap();
     let s = top(&ok, "sampler")[0];
     assert_eq!(s.int("sample_count", 0).unwrap(), 9);
 }
@@ -181,17 +150,11 @@ fn unknown_and_unsupported_elements() {
 fn bad_values_and_ids() {
     let e = err_of("bad/bad_number.xml");
     assert_eq!(e.loc.line, 3, "{e}");
-    assert!(
-        e.message.contains("'value'") && e.message.contains("\"4o\""),
-        "{e}"
-    );
+    assert!(e.message.contains("'value'") && e.message.contains("\"4o\""), "{e}");
     let e = err_of("bad/no_version.xml");
     assert!(e.message.contains("version"), "{e}");
     let e = err_of("bad/duplicate_id.xml");
-    assert!(
-        e.message.contains("duplicate id 'wall'") && e.message.contains("line 2"),
-        "{e}"
-    );
+    assert!(e.message.contains("duplicate id 'wall'") && e.message.contains("line 2"), "{e}");
     assert_eq!(e.loc.line, 3);
     let e = err_of("bad/unknown_ref.xml");
     assert!(e.message.contains("unknown id 'wal'"), "{e}");
@@ -236,11 +199,7 @@ fn legacy_camel_case_matches_modern_spelling() {
     let white = top(&old, "bsdf")[1];
     assert!(white.has("reflectance"), "diffuseReflectance → reflectance");
     let integrator = top(&old, "integrator")[0];
-    assert_eq!(
-        integrator.int("max_depth", 0).unwrap(),
-        8,
-        "$maxDepth default kept its name"
-    );
+    assert_eq!(integrator.int("max_depth", 0).unwrap(), 8, "$maxDepth default kept its name");
     assert_eq!(integrator.int("rr_depth", 0).unwrap(), 3);
     let sphere = top(&new, "shape")[1];
     let em = sphere.objects_with_tag("emitter").next().unwrap();
@@ -249,19 +208,12 @@ fn legacy_camel_case_matches_modern_spelling() {
 }
 
 fn shape<'a>(scene: &'a Props, id: &str) -> &'a Arc<Props> {
-    scene
-        .objects()
-        .map(|(_, o)| o)
-        .find(|o| o.id.as_deref() == Some(id))
-        .unwrap()
+    scene.objects().map(|(_, o)| o).find(|o| o.id.as_deref() == Some(id)).unwrap()
 }
 
 fn maps(m: Mat4, from: Vec3, to: Vec3) {
     let got = m.transform_point3(from);
-    assert!(
-        (got - to).length() < 1e-5,
-        "{from:?} → {got:?}, expected {to:?}"
-    );
+    assert!((got - to).length() < 1e-5, "{from:?} → {got:?}, expected {to:?}");
 }
 
 #[test]
@@ -281,15 +233,11 @@ fn transforms_compose_in_document_order() {
     maps(m, Vec3::Y, Vec3::Z);
     maps(m, Vec3::Z, -Vec3::Y);
 
-    let m = shape(&scene, "uniform_scale")
-        .transform("to_world")
-        .unwrap();
+    let m = shape(&scene, "uniform_scale").transform("to_world").unwrap();
     maps(m, Vec3::new(1.0, 1.0, 1.0), Vec3::new(4.0, 5.0, 6.0));
 
     // The matrix is row-major: its first column (0, 1, 0) is the image of +x.
-    let m = shape(&scene, "matrix_then_translate")
-        .transform("to_world")
-        .unwrap();
+    let m = shape(&scene, "matrix_then_translate").transform("to_world").unwrap();
     maps(m, Vec3::X, Vec3::new(0.0, 1.0, 5.0));
 
     // lookat origin 0, target +x, up +z: columns [left, up, dir] = [y, z, x].
@@ -299,14 +247,8 @@ fn transforms_compose_in_document_order() {
     maps(m, Vec3::Z, Vec3::X);
 
     let s = shape(&scene, "point_forms");
-    assert_eq!(
-        s.get("center").unwrap().value,
-        PropValue::Point(Vec3::new(1.0, 2.0, 3.0))
-    );
-    assert_eq!(
-        s.get("axis").unwrap().value,
-        PropValue::Vector(Vec3::new(4.0, 0.0, 6.0))
-    );
+    assert_eq!(s.get("center").unwrap().value, PropValue::Point(Vec3::new(1.0, 2.0, 3.0)));
+    assert_eq!(s.get("axis").unwrap().value, PropValue::Vector(Vec3::new(4.0, 0.0, 6.0)));
 }
 
 #[test]

@@ -21,8 +21,7 @@ impl TimedQuery {
     fn timed<T>(&self, f: impl FnOnce() -> T) -> T {
         let t = Instant::now();
         let r = f();
-        self.nanos
-            .fetch_add(t.elapsed().as_nanos() as u64, Ordering::Relaxed);
+        self.nanos.fetch_add(t.elapsed().as_nanos() as u64, Ordering::Relaxed);
         r
     }
 }

@@ -10,9 +10,7 @@
 //! Reflectance is the exact unpolarised conductor Fresnel formula evaluated per RGB channel.
 
 use super::fresnel::{fresnel_conductor, reflect_local};
-use super::{
-    finish_sample, read_conductor_ior, Bsdf, BsdfContext, BsdfLoader, BsdfLobe, BsdfSample,
-};
+use super::{finish_sample, read_conductor_ior, Bsdf, BsdfContext, BsdfLoader, BsdfLobe, BsdfSample};
 use crate::scene::{Props, SceneError};
 use crate::spectrum::Spectrum;
 use crate::texture::Texture;
@@ -56,13 +54,7 @@ impl Bsdf for SmoothConductor {
         }
         let f = fresnel_conductor(wi.z, self.eta.eval(ctx.uv), self.k.eval(ctx.uv));
         let weight = f * self.specular_reflectance.eval(ctx.uv);
-        finish_sample(
-            reflect_local(wi),
-            weight,
-            1.0,
-            BsdfLobe::DELTA_REFLECTION,
-            1.0,
-        )
+        finish_sample(reflect_local(wi), weight, 1.0, BsdfLobe::DELTA_REFLECTION, 1.0)
     }
 
     fn roughness(&self) -> f32 {

@@ -12,9 +12,7 @@
 //! does not (Veach 1997, §5.2), so that the two modes are adjoint.
 
 use super::fresnel::{fresnel_dielectric, reflect_local};
-use super::{
-    finish_sample, read_eta, Bsdf, BsdfContext, BsdfLoader, BsdfLobe, BsdfSample, TransportMode,
-};
+use super::{finish_sample, read_eta, Bsdf, BsdfContext, BsdfLoader, BsdfLobe, BsdfSample, TransportMode};
 use crate::scene::{Props, SceneError};
 use crate::spectrum::Spectrum;
 use crate::texture::Texture;
@@ -30,23 +28,11 @@ pub struct SmoothDielectric {
 
 impl SmoothDielectric {
     pub fn new(eta: f32) -> SmoothDielectric {
-        SmoothDielectric {
-            eta,
-            specular_reflectance: None,
-            specular_transmittance: None,
-        }
+        SmoothDielectric { eta, specular_reflectance: None, specular_transmittance: None }
     }
 
     pub fn from_props(props: &Props, loader: &BsdfLoader) -> Result<SmoothDielectric, SceneError> {
-        props.expect_only(
-            &[
-                "int_ior",
-                "ext_ior",
-                "specular_reflectance",
-                "specular_transmittance",
-            ],
-            &[],
-        )?;
+        props.expect_only(&["int_ior", "ext_ior", "specular_reflectance", "specular_transmittance"], &[])?;
         Ok(SmoothDielectric {
             eta: read_eta(props, "bk7", false)?,
             specular_reflectance: loader.texture_opt(props, "specular_reflectance")?,
@@ -79,13 +65,7 @@ impl Bsdf for SmoothDielectric {
                 Some(t) => t.eval(ctx.uv),
                 None => Vec3::ONE,
             };
-            finish_sample(
-                reflect_local(wi),
-                weight,
-                r,
-                BsdfLobe::DELTA_REFLECTION,
-                1.0,
-            )
+            finish_sample(reflect_local(wi), weight, r, BsdfLobe::DELTA_REFLECTION, 1.0)
         } else {
             let wo = Vec3::new(-fr.eta_ti * wi.x, -fr.eta_ti * wi.y, fr.cos_theta_t);
             if wo.z * wi.z >= 0.0 {

@@ -27,11 +27,7 @@ impl Diffuse {
 
     pub fn from_props(props: &Props, loader: &BsdfLoader) -> Result<Diffuse, SceneError> {
         props.expect_only(&["reflectance"], &[])?;
-        Ok(Diffuse::new(loader.texture(
-            props,
-            "reflectance",
-            Vec3::splat(0.5),
-        )?))
+        Ok(Diffuse::new(loader.texture(props, "reflectance", Vec3::splat(0.5))?))
     }
 }
 
@@ -63,13 +59,7 @@ impl Bsdf for Diffuse {
             return None;
         }
         let weight = sanitize(self.reflectance.eval(ctx.uv));
-        finish_sample(
-            wo,
-            weight,
-            wo.z * FRAC_1_PI,
-            BsdfLobe::DIFFUSE_REFLECTION,
-            1.0,
-        )
+        finish_sample(wo, weight, wo.z * FRAC_1_PI, BsdfLobe::DIFFUSE_REFLECTION, 1.0)
     }
 
     fn roughness(&self) -> f32 {

@@ -22,40 +22,21 @@ pub struct DielectricFresnel {
 /// the outside being the side the normal points into (`cos_theta_i` > 0 means incidence from outside).
 pub fn fresnel_dielectric(cos_theta_i: f32, eta: f32) -> DielectricFresnel {
     let outside = cos_theta_i >= 0.0;
-    let (eta_it, eta_ti) = if outside {
-        (eta, 1.0 / eta)
-    } else {
-        (1.0 / eta, eta)
-    };
+    let (eta_it, eta_ti) = if outside { (eta, 1.0 / eta) } else { (1.0 / eta, eta) };
     let cos_i = cos_theta_i.abs().min(1.0);
     let cos_t_sqr = 1.0 - (1.0 - cos_i * cos_i) * eta_ti * eta_ti;
     if eta == 1.0 {
-        return DielectricFresnel {
-            reflectance: 0.0,
-            cos_theta_t: -cos_theta_i,
-            eta_it,
-            eta_ti,
-        };
+        return DielectricFresnel { reflectance: 0.0, cos_theta_t: -cos_theta_i, eta_it, eta_ti };
     }
     if cos_t_sqr <= 0.0 || cos_i == 0.0 {
         // Total internal reflection, or exactly grazing incidence where everything reflects.
-        return DielectricFresnel {
-            reflectance: 1.0,
-            cos_theta_t: 0.0,
-            eta_it,
-            eta_ti,
-        };
+        return DielectricFresnel { reflectance: 1.0, cos_theta_t: 0.0, eta_it, eta_ti };
     }
     let cos_t = cos_t_sqr.sqrt();
     let a_s = (cos_i - eta_it * cos_t) / (cos_i + eta_it * cos_t);
     let a_p = (cos_t - eta_it * cos_i) / (cos_t + eta_it * cos_i);
     let reflectance = (0.5 * (a_s * a_s + a_p * a_p)).clamp(0.0, 1.0);
-    DielectricFresnel {
-        reflectance,
-        cos_theta_t: if outside { -cos_t } else { cos_t },
-        eta_it,
-        eta_ti,
-    }
+    DielectricFresnel { reflectance, cos_theta_t: if outside { -cos_t } else { cos_t }, eta_it, eta_ti }
 }
 
 /// Unpolarised reflectance of a conductor with complex relative index `eta + i k`, per channel.
@@ -82,19 +63,11 @@ fn fresnel_conductor_1(cos_i: f32, eta: f32, k: f32) -> f32 {
     let term1 = a2pb2 + cos2;
     let term2 = 2.0 * cos_i * a;
     let denom_s = term1 + term2;
-    let r_s = if denom_s > 0.0 {
-        (term1 - term2) / denom_s
-    } else {
-        1.0
-    };
+    let r_s = if denom_s > 0.0 { (term1 - term2) / denom_s } else { 1.0 };
     let term3 = a2pb2 * cos2 + sin4;
     let term4 = term2 * sin2;
     let denom_p = term3 + term4;
-    let r_p = if denom_p > 0.0 {
-        r_s * (term3 - term4) / denom_p
-    } else {
-        r_s
-    };
+    let r_p = if denom_p > 0.0 { r_s * (term3 - term4) / denom_p } else { r_s };
     let r = 0.5 * (r_s + r_p);
     if r.is_finite() {
         r.clamp(0.0, 1.0) as f32
@@ -176,10 +149,7 @@ mod tests {
             }
             let numeric = 2.0 * sum / n as f64;
             let fit = fresnel_diffuse_reflectance(eta) as f64;
-            assert!(
-                (numeric - fit).abs() < 0.01,
-                "eta {eta}: {numeric} vs {fit}"
-            );
+            assert!((numeric - fit).abs() < 0.01, "eta {eta}: {numeric} vs {fit}");
         }
     }
 }

@@ -39,12 +39,7 @@ pub struct Microfacet {
 impl Microfacet {
     pub fn new(kind: MicrofacetKind, alpha_u: f32, alpha_v: f32, sample_visible: bool) -> Self {
         let clamp = |a: f32| if a.is_finite() { a.max(MIN_ALPHA) } else { 1.0 };
-        Microfacet {
-            kind,
-            alpha_u: clamp(alpha_u),
-            alpha_v: clamp(alpha_v),
-            sample_visible,
-        }
+        Microfacet { kind, alpha_u: clamp(alpha_u), alpha_v: clamp(alpha_v), sample_visible }
     }
 
     pub fn is_isotropic(&self) -> bool {
@@ -53,12 +48,7 @@ impl Microfacet {
 
     /// A copy with both roughnesses multiplied by `s` (Walter's trick for non-visible sampling).
     pub fn scaled(&self, s: f32) -> Microfacet {
-        Microfacet::new(
-            self.kind,
-            self.alpha_u * s,
-            self.alpha_v * s,
-            self.sample_visible,
-        )
+        Microfacet::new(self.kind, self.alpha_u * s, self.alpha_v * s, self.sample_visible)
     }
 
     /// Normal distribution D(m), zero for normals below the macro surface.
@@ -71,9 +61,7 @@ impl Microfacet {
         let (au, av) = (self.alpha_u, self.alpha_v);
         let ex = (m.x / au) * (m.x / au) + (m.y / av) * (m.y / av);
         let result = match self.kind {
-            MicrofacetKind::Beckmann => {
-                (-ex / cos2).exp() / (std::f32::consts::PI * au * av * cos2 * cos2)
-            }
+            MicrofacetKind::Beckmann => (-ex / cos2).exp() / (std::f32::consts::PI * au * av * cos2 * cos2),
             MicrofacetKind::Ggx => {
                 let t = ex + cos2;
                 1.0 / (std::f32::consts::PI * au * av * t * t)
@@ -104,8 +92,7 @@ impl Microfacet {
                 if a > 6.0 {
                     return 1.0;
                 }
-                let lambda =
-                    0.5 * (-erfc64(a) + (-a * a).exp() / (a * std::f64::consts::PI.sqrt()));
+                let lambda = 0.5 * (-erfc64(a) + (-a * a).exp() / (a * std::f64::consts::PI.sqrt()));
                 (1.0 / (1.0 + lambda)) as f32
             }
             MicrofacetKind::Ggx => 2.0 / (1.0 + (1.0 + tan_theta_alpha_2).sqrt()),
@@ -184,11 +171,7 @@ impl Microfacet {
         };
         let cos_theta = 1.0 / (1.0 + tan2).sqrt();
         let sin_theta = (1.0 - cos_theta * cos_theta).max(0.0).sqrt();
-        Vec3::new(
-            (cos_phi * sin_theta) as f32,
-            (sin_phi * sin_theta) as f32,
-            cos_theta as f32,
-        )
+        Vec3::new((cos_phi * sin_theta) as f32, (sin_phi * sin_theta) as f32, cos_theta as f32)
     }
 
     fn sample_visible_normal(&self, wi: Vec3, u: Vec2) -> Vec3 {
@@ -200,11 +183,7 @@ impl Microfacet {
         let len = (wx * wx + wy * wy + wz * wz).sqrt();
         let (wx, wy, wz) = (wx / len, wy / len, wz / len);
         let sin_t = (wx * wx + wy * wy).sqrt();
-        let (sin_phi, cos_phi) = if sin_t > 0.0 {
-            (wy / sin_t, wx / sin_t)
-        } else {
-            (0.0, 1.0)
-        };
+        let (sin_phi, cos_phi) = if sin_t > 0.0 { (wy / sin_t, wx / sin_t) } else { (0.0, 1.0) };
         let (sx, sy) = match self.kind {
             MicrofacetKind::Beckmann => beckmann_visible_slope_11(wz, u),
             MicrofacetKind::Ggx => ggx_visible_slope_11(wz, u),
@@ -225,18 +204,10 @@ fn beckmann_visible_slope_11(cos_theta_i: f64, u: Vec2) -> (f64, f64) {
     let inv_sqrt_pi = 1.0 / PI64.sqrt();
     let cos_i = cos_theta_i.clamp(1e-7, 1.0);
     let tan_i = (1.0 - cos_i * cos_i).max(0.0).sqrt() / cos_i;
-    let cot_i = if tan_i > 0.0 {
-        1.0 / tan_i
-    } else {
-        f64::INFINITY
-    };
+    let cot_i = if tan_i > 0.0 { 1.0 / tan_i } else { f64::INFINITY };
     // The CDF of x = erf(slope) on [-1, maxval] is 1 + x + tan/√π exp(-erfinv(x)²), unnormalised.
     let maxval = erf64(cot_i);
-    let tail = if tan_i > 0.0 {
-        inv_sqrt_pi * tan_i * (-cot_i * cot_i).exp()
-    } else {
-        0.0
-    };
+    let tail = if tan_i > 0.0 { inv_sqrt_pi * tan_i * (-cot_i * cot_i).exp() } else { 0.0 };
     let target = ux * (1.0 + maxval + tail);
     // Initial guess: the analytic solution at grazing incidence.
     let mut x = maxval - (maxval + 1.0) * erf64((-ux.ln()).sqrt());
@@ -284,8 +255,7 @@ pub fn erfc64(x: f64) -> f64 {
                 + t * (0.09678418
                     + t * (-0.18628806
                         + t * (0.27886807
-                            + t * (-1.13520398
-                                + t * (1.48851587 + t * (-0.82215223 + t * 0.17087277))))))));
+                            + t * (-1.13520398 + t * (1.48851587 + t * (-0.82215223 + t * 0.17087277))))))));
     let r = t * poly.exp();
     if x >= 0.0 {
         r
@@ -383,10 +353,7 @@ pub fn gauss_legendre(n: usize) -> Vec<(f64, f64)> {
 /// index `eta`, for incidence `wi` (upper hemisphere): E[F(wi·m) G1(wo, m)] over visible normals,
 /// by tensor Gauss-Legendre quadrature as Mitsuba 3's `eval_reflectance`.
 pub fn eval_reflectance(distr: &Microfacet, wi: Vec3, eta: f32, nodes: &[(f64, f64)]) -> f32 {
-    let d = Microfacet {
-        sample_visible: true,
-        ..*distr
-    };
+    let d = Microfacet { sample_visible: true, ..*distr };
     if wi.z <= 0.0 {
         return 0.0;
     }
@@ -409,10 +376,7 @@ pub fn eval_reflectance(distr: &Microfacet, wi: Vec3, eta: f32, nodes: &[(f64, f
 /// Directional transmittance through a rough dielectric interface (without the η² radiance
 /// scaling): E[(1 - F(wi·m)) G1(wo, m)] over visible normals, as Mitsuba 3's `eval_transmittance`.
 pub fn eval_transmittance(distr: &Microfacet, wi: Vec3, eta: f32, nodes: &[(f64, f64)]) -> f32 {
-    let d = Microfacet {
-        sample_visible: true,
-        ..*distr
-    };
+    let d = Microfacet { sample_visible: true, ..*distr };
     if wi.z <= 0.0 {
         return 0.0;
     }
@@ -442,11 +406,7 @@ mod tests {
     #[test]
     fn special_functions() {
         // Reference values of erf.
-        for (x, e) in [
-            (0.5, 0.520_499_877_8),
-            (1.0, 0.842_700_792_9),
-            (2.0, 0.995_322_265),
-        ] {
+        for (x, e) in [(0.5, 0.520_499_877_8), (1.0, 0.842_700_792_9), (2.0, 0.995_322_265)] {
             assert!((erf64(x) - e).abs() < 2e-7, "erf({x})");
             assert!((erf64(-x) + e).abs() < 2e-7);
         }
@@ -475,8 +435,7 @@ mod tests {
                     let st = (1.0 - ct * ct).max(0.0).sqrt();
                     for j in 0..np {
                         let phi = 2.0 * PI64 * (j as f64 + 0.5) / np as f64;
-                        let m =
-                            Vec3::new((st * phi.cos()) as f32, (st * phi.sin()) as f32, ct as f32);
+                        let m = Vec3::new((st * phi.cos()) as f32, (st * phi.sin()) as f32, ct as f32);
                         let w = jac * 2.0 * PI64 / np as f64;
                         a += (d.d(m) * m.z) as f64 * w;
                         b += (d.d(m) * d.g1(wi, m) * wi.dot(m).max(0.0)) as f64 * w;

@@ -157,12 +157,7 @@ pub fn from_props(props: &Props, loader: &BsdfLoader) -> Result<Arc<dyn Bsdf>, S
 
 impl BsdfLoader<'_> {
     /// A colour-or-texture parameter, relative file names resolved against `base_dir`.
-    pub fn texture(
-        &self,
-        props: &Props,
-        name: &str,
-        default: Spectrum,
-    ) -> Result<Texture, SceneError> {
+    pub fn texture(&self, props: &Props, name: &str, default: Spectrum) -> Result<Texture, SceneError> {
         Texture::from_param_in(props, name, default, self.base_dir)
     }
 
@@ -178,34 +173,24 @@ impl BsdfLoader<'_> {
 
 /// Reads `distribution` (`beckmann` or `ggx`, case-insensitive; Beckmann by default as in Mitsuba 3).
 pub(crate) fn read_distribution(props: &Props) -> Result<MicrofacetKind, SceneError> {
-    match props
-        .string("distribution", "beckmann")?
-        .to_ascii_lowercase()
-        .as_str()
-    {
+    match props.string("distribution", "beckmann")?.to_ascii_lowercase().as_str() {
         "beckmann" => Ok(MicrofacetKind::Beckmann),
         "ggx" => Ok(MicrofacetKind::Ggx),
-        other => Err(props.error_at(
-            "distribution",
-            format!("invalid distribution '{other}' (expected beckmann or ggx)"),
-        )),
+        other => Err(props
+            .error_at("distribution", format!("invalid distribution '{other}' (expected beckmann or ggx)"))),
     }
 }
 
 fn read_roughness(props: &Props, name: &str) -> Result<Option<f32>, SceneError> {
     if let Some(PropValue::Object(_)) = props.get(name).map(|p| &p.value) {
-        return Err(props.error_at(
-            name,
-            format!("textured roughness is not supported; give '{name}' as a float"),
-        ));
+        return Err(
+            props.error_at(name, format!("textured roughness is not supported; give '{name}' as a float"))
+        );
     }
     let v = props.float_opt(name)?;
     if let Some(a) = v {
         if !(a.is_finite() && a >= 0.0) {
-            return Err(props.error_at(
-                name,
-                format!("'{name}' must be a non-negative number, got {a}"),
-            ));
+            return Err(props.error_at(name, format!("'{name}' must be a non-negative number, got {a}")));
         }
     }
     Ok(v)
@@ -233,11 +218,7 @@ pub(crate) fn read_alpha(props: &Props) -> Result<(f32, f32), SceneError> {
 }
 
 /// Relative index int_ior/ext_ior from `int_ior`/`ext_ior` (numbers or names).
-pub(crate) fn read_eta(
-    props: &Props,
-    int_default: &str,
-    require_mismatch: bool,
-) -> Result<f32, SceneError> {
+pub(crate) fn read_eta(props: &Props, int_default: &str, require_mismatch: bool) -> Result<f32, SceneError> {
     let int_ior = ior::read_ior(props, "int_ior", int_default)?;
     let ext_ior = ior::read_ior(props, "ext_ior", "air")?;
     if require_mismatch && int_ior == ext_ior {
@@ -254,10 +235,7 @@ pub(crate) fn read_conductor_ior(
     let material = props.string("material", "none")?;
     if props.has("eta") || props.has("k") || material == "none" {
         if material != "none" {
-            return Err(props.error_at(
-                "material",
-                "specify either 'material' or 'eta'/'k', not both",
-            ));
+            return Err(props.error_at("material", "specify either 'material' or 'eta'/'k', not both"));
         }
         let eta = loader.texture(props, "eta", Vec3::ZERO)?;
         let k = loader.texture(props, "k", Vec3::ONE)?;
@@ -298,11 +276,5 @@ pub(crate) fn finish_sample(
     if weight.max_element() <= 0.0 {
         return None;
     }
-    Some(BsdfSample {
-        wo,
-        weight: weight.max(Vec3::ZERO),
-        pdf,
-        lobe,
-        eta,
-    })
+    Some(BsdfSample { wo, weight: weight.max(Vec3::ZERO), pdf, lobe, eta })
 }

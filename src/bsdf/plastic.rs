@@ -15,9 +15,7 @@
 //! The lobe is picked with probability ∝ F·s̄ vs (1−F)(1−s̄), s̄ = mean specular / (mean diffuse + mean specular).
 
 use super::fresnel::{fresnel_dielectric, fresnel_diffuse_reflectance, reflect_local};
-use super::{
-    finish_sample, read_eta, sanitize, Bsdf, BsdfContext, BsdfLoader, BsdfLobe, BsdfSample,
-};
+use super::{finish_sample, read_eta, sanitize, Bsdf, BsdfContext, BsdfLoader, BsdfLobe, BsdfSample};
 use crate::sampling::square_to_cosine_hemisphere;
 use crate::scene::{Props, SceneError};
 use crate::spectrum::Spectrum;
@@ -78,13 +76,7 @@ impl SmoothPlastic {
 
     pub fn from_props(props: &Props, loader: &BsdfLoader) -> Result<SmoothPlastic, SceneError> {
         props.expect_only(
-            &[
-                "diffuse_reflectance",
-                "specular_reflectance",
-                "int_ior",
-                "ext_ior",
-                "nonlinear",
-            ],
+            &["diffuse_reflectance", "specular_reflectance", "int_ior", "ext_ior", "nonlinear"],
             &[],
         )?;
         Ok(SmoothPlastic::new(
@@ -103,11 +95,8 @@ impl SmoothPlastic {
     fn diffuse_term(&self, ctx: &BsdfContext, f_i: f32, cos_o: f32) -> Spectrum {
         let f_o = fresnel_dielectric(cos_o, self.eta).reflectance;
         let rho = self.diffuse_reflectance.eval(ctx.uv);
-        let denom = if self.nonlinear {
-            Vec3::ONE - rho * self.fdr_int
-        } else {
-            Vec3::splat(1.0 - self.fdr_int)
-        };
+        let denom =
+            if self.nonlinear { Vec3::ONE - rho * self.fdr_int } else { Vec3::splat(1.0 - self.fdr_int) };
         sanitize(rho / denom * (self.inv_eta_2 * (1.0 - f_i) * (1.0 - f_o) * FRAC_1_PI))
     }
 }
@@ -144,13 +133,7 @@ impl Bsdf for SmoothPlastic {
                 Some(t) => t.eval(ctx.uv),
                 None => Vec3::ONE,
             };
-            finish_sample(
-                reflect_local(wi),
-                tint * (f_i / p_spec),
-                p_spec,
-                BsdfLobe::DELTA_REFLECTION,
-                1.0,
-            )
+            finish_sample(reflect_local(wi), tint * (f_i / p_spec), p_spec, BsdfLobe::DELTA_REFLECTION, 1.0)
         } else {
             let wo = square_to_cosine_hemisphere(u);
             if wo.z <= 0.0 {

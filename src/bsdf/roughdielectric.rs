@@ -20,8 +20,8 @@
 use super::fresnel::{fresnel_dielectric, reflect_about, refract_about};
 use super::microfacet::Microfacet;
 use super::{
-    finish_sample, read_alpha, read_distribution, read_eta, sanitize, Bsdf, BsdfContext,
-    BsdfLoader, BsdfLobe, BsdfSample, TransportMode,
+    finish_sample, read_alpha, read_distribution, read_eta, sanitize, Bsdf, BsdfContext, BsdfLoader,
+    BsdfLobe, BsdfSample, TransportMode,
 };
 use crate::scene::{Props, SceneError};
 use crate::spectrum::Spectrum;
@@ -39,12 +39,7 @@ pub struct RoughDielectric {
 
 impl RoughDielectric {
     pub fn new(distr: Microfacet, eta: f32) -> RoughDielectric {
-        RoughDielectric {
-            distr,
-            eta,
-            specular_reflectance: None,
-            specular_transmittance: None,
-        }
+        RoughDielectric { distr, eta, specular_reflectance: None, specular_transmittance: None }
     }
 
     pub fn from_props(props: &Props, loader: &BsdfLoader) -> Result<RoughDielectric, SceneError> {
@@ -144,9 +139,8 @@ impl Bsdf for RoughDielectric {
                 TransportMode::Importance => 1.0,
             };
             let denom = wi_m + eta * wo_m;
-            let v = (scale * (1.0 - f) * d * g * eta * eta * wi_m * wo_m
-                / (cos_i * cos_o * denom * denom))
-                .abs();
+            let v =
+                (scale * (1.0 - f) * d * g * eta * eta * wi_m * wo_m / (cos_i * cos_o * denom * denom)).abs();
             sanitize(Self::tint(&self.specular_transmittance, ctx) * v)
         }
     }

@@ -19,13 +19,11 @@
 //! quadrature over visible normals exactly as Mitsuba 3 precomputes them.
 
 use super::fresnel::{fresnel_dielectric, reflect_about};
-use super::microfacet::{
-    eval_reflectance, eval_transmittance, gauss_legendre, Microfacet, MicrofacetKind,
-};
+use super::microfacet::{eval_reflectance, eval_transmittance, gauss_legendre, Microfacet, MicrofacetKind};
 use super::plastic::{specular_probability, specular_sampling_weight};
 use super::{
-    finish_sample, read_alpha, read_distribution, read_eta, sanitize, Bsdf, BsdfContext,
-    BsdfLoader, BsdfLobe, BsdfSample,
+    finish_sample, read_alpha, read_distribution, read_eta, sanitize, Bsdf, BsdfContext, BsdfLoader,
+    BsdfLobe, BsdfSample,
 };
 use crate::sampling::square_to_cosine_hemisphere;
 use crate::scene::{Props, SceneError};
@@ -81,12 +79,7 @@ impl CoatingTables {
             return t.clone();
         }
         let tables = Arc::new(CoatingTables::compute(kind, alpha, eta));
-        cache
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .entry(key)
-            .or_insert(tables)
-            .clone()
+        cache.lock().unwrap_or_else(|e| e.into_inner()).entry(key).or_insert(tables).clone()
     }
 
     /// Linear interpolation in the table, as Mitsuba's `lerp_gather`.
@@ -95,8 +88,7 @@ impl CoatingTables {
         let x = cos_theta.clamp(0.0, 1.0) * (n - 1) as f32;
         let index = (x as usize).min(n - 2);
         let w1 = x - index as f32;
-        (1.0 - w1) * self.external_transmittance[index]
-            + w1 * self.external_transmittance[index + 1]
+        (1.0 - w1) * self.external_transmittance[index] + w1 * self.external_transmittance[index + 1]
     }
 }
 
@@ -153,9 +145,7 @@ impl RoughPlastic {
         let kind = read_distribution(props)?;
         let (au, av) = read_alpha(props)?;
         if au != av {
-            return Err(
-                props.error("roughplastic does not support anisotropic roughness (as Mitsuba 3)")
-            );
+            return Err(props.error("roughplastic does not support anisotropic roughness (as Mitsuba 3)"));
         }
         let visible = props.bool("sample_visible", true)?;
         Ok(RoughPlastic::new(
@@ -203,11 +193,7 @@ impl Bsdf for RoughPlastic {
         let t_o = self.tables.transmittance(wo.z);
         let rho = self.diffuse_reflectance.eval(ctx.uv);
         let r_int = self.tables.internal_reflectance;
-        let denom = if self.nonlinear {
-            Vec3::ONE - rho * r_int
-        } else {
-            Vec3::splat(1.0 - r_int)
-        };
+        let denom = if self.nonlinear { Vec3::ONE - rho * r_int } else { Vec3::splat(1.0 - r_int) };
         value += rho / denom * (FRAC_1_PI * self.inv_eta_2 * t_i * t_o);
         sanitize(value)
     }
@@ -275,17 +261,10 @@ mod tests {
             );
         }
         let fdr = fresnel_diffuse_reflectance(1.0 / eta);
-        assert!(
-            (t.internal_reflectance - fdr).abs() < 0.03,
-            "{} vs {fdr}",
-            t.internal_reflectance
-        );
+        assert!((t.internal_reflectance - fdr).abs() < 0.03, "{} vs {fdr}", t.internal_reflectance);
         // Transmittance is a fraction for any roughness.
         let rough = CoatingTables::get(MicrofacetKind::Beckmann, 0.5, eta);
-        assert!(rough
-            .external_transmittance
-            .iter()
-            .all(|&x| (0.0..=1.0).contains(&x)));
+        assert!(rough.external_transmittance.iter().all(|&x| (0.0..=1.0).contains(&x)));
         assert!(rough.internal_reflectance > 0.0 && rough.internal_reflectance < 1.0);
     }
 }

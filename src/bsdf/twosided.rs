@@ -27,9 +27,7 @@ fn flip(v: Vec3) -> Vec3 {
 
 impl TwoSided {
     pub fn new(front: Arc<dyn Bsdf>, back: Arc<dyn Bsdf>) -> Result<TwoSided, String> {
-        if front.lobes().contains(BsdfLobe::TRANSMISSION)
-            || back.lobes().contains(BsdfLobe::TRANSMISSION)
-        {
+        if front.lobes().contains(BsdfLobe::TRANSMISSION) || back.lobes().contains(BsdfLobe::TRANSMISSION) {
             return Err("only BSDFs without transmission can be nested in twosided".into());
         }
         Ok(TwoSided { front, back })

@@ -125,13 +125,7 @@ fn thread_pool(threads: usize) -> anyhow::Result<rayon::ThreadPool> {
 }
 
 fn load(args: &SceneArgs, accel: AccelKind) -> anyhow::Result<Scene> {
-    let scene = Scene::load(
-        &args.scene,
-        &LoadOptions {
-            defines: args.define.clone(),
-            accel,
-        },
-    )?;
+    let scene = Scene::load(&args.scene, &LoadOptions { defines: args.define.clone(), accel })?;
     for w in &scene.warnings {
         eprintln!("warning: {w}");
     }
@@ -140,24 +134,14 @@ fn load(args: &SceneArgs, accel: AccelKind) -> anyhow::Result<Scene> {
 
 fn check_output_paths(outputs: &[PathBuf]) -> anyhow::Result<()> {
     for o in outputs {
-        let ext = o
-            .extension()
-            .and_then(|e| e.to_str())
-            .map(|e| e.to_ascii_lowercase());
+        let ext = o.extension().and_then(|e| e.to_str()).map(|e| e.to_ascii_lowercase());
         match ext.as_deref() {
             Some("exr" | "png" | "jpg" | "jpeg" | "tif" | "tiff" | "hdr") => {}
-            _ => bail!(
-                "{}: unsupported output format (use .exr, .png, .jpg, .tif or .hdr)",
-                o.display()
-            ),
+            _ => bail!("{}: unsupported output format (use .exr, .png, .jpg, .tif or .hdr)", o.display()),
         }
         if let Some(dir) = o.parent().filter(|d| !d.as_os_str().is_empty()) {
             if !dir.is_dir() {
-                bail!(
-                    "{}: the output directory {} does not exist",
-                    o.display(),
-                    dir.display()
-                );
+                bail!("{}: the output directory {} does not exist", o.display(), dir.display());
             }
         }
     }
@@ -175,10 +159,7 @@ fn run_render(args: RenderArgs) -> anyhow::Result<i32> {
         bail!("--spp must be at least 1");
     }
     let scene = load(&args.scene, parse_accel(&args.accel)?)?;
-    let kind_name = args
-        .integrator
-        .clone()
-        .unwrap_or_else(|| scene.integrator.kind.clone());
+    let kind_name = args.integrator.clone().unwrap_or_else(|| scene.integrator.kind.clone());
     let kind = IntegratorKind::parse(&kind_name).map_err(anyhow::Error::msg)?;
     let limits = DepthLimits {
         max_depth: args.max_depth.unwrap_or(scene.integrator.max_depth),
@@ -189,11 +170,7 @@ fn run_render(args: RenderArgs) -> anyhow::Result<i32> {
     }
     let integrator = integrators::make(kind, limits, scene.integrator.hide_emitters);
     let options = RenderOptions {
-        spp: args.spp.or(if args.time.is_some() {
-            None
-        } else {
-            Some(scene.spp)
-        }),
+        spp: args.spp.or(if args.time.is_some() { None } else { Some(scene.spp) }),
         time_limit: args.time.map(Duration::from_secs_f64),
         seed: args.seed,
         progress: !args.quiet,
@@ -207,8 +184,7 @@ fn run_render(args: RenderArgs) -> anyhow::Result<i32> {
     });
     let pool = thread_pool(args.threads)?;
     let threads = pool.current_num_threads();
-    let (film, stats) =
-        pool.install(|| render::render(&scene, integrator.as_ref(), &options, &CANCEL));
+    let (film, stats) = pool.install(|| render::render(&scene, integrator.as_ref(), &options, &CANCEL));
     let image = film.to_image();
     let meta = metadata(&scene, kind.name(), &options, limits, threads, &stats);
     for out in &args.output {
@@ -239,14 +215,8 @@ fn metadata(
         ("hslt.max_depth".into(), limits.max_depth.to_string()),
         ("hslt.rr_depth".into(), limits.rr_depth.to_string()),
         ("hslt.threads".into(), threads.to_string()),
-        (
-            "hslt.elapsed_seconds".into(),
-            format!("{:.3}", stats.elapsed.as_secs_f64()),
-        ),
-        (
-            "hslt.invalid_samples".into(),
-            stats.invalid_samples.to_string(),
-        ),
+        ("hslt.elapsed_seconds".into(), format!("{:.3}", stats.elapsed.as_secs_f64())),
+        ("hslt.invalid_samples".into(), stats.invalid_samples.to_string()),
         ("hslt.interrupted".into(), stats.interrupted.to_string()),
     ]
 }
@@ -265,11 +235,7 @@ fn print_summary(outputs: &[PathBuf], stats: &RenderStats, threads: usize) {
         } else {
             String::new()
         },
-        if stats.interrupted {
-            " (interrupted)"
-        } else {
-            ""
-        },
+        if stats.interrupted { " (interrupted)" } else { "" },
     );
     for o in outputs {
         eprintln!("wrote {}", o.display());
@@ -288,11 +254,7 @@ pub fn describe(scene: &Scene) -> String {
     let f = &scene.features;
     let mut s = String::new();
     let _ = writeln!(s, "scene      {}", scene.path.display());
-    let _ = writeln!(
-        s,
-        "film       {} x {}, {:?}",
-        scene.film.width, scene.film.height, scene.film.rfilter
-    );
+    let _ = writeln!(s, "film       {} x {}, {:?}", scene.film.width, scene.film.height, scene.film.rfilter);
     let _ = writeln!(s, "samples    {} per pixel", scene.spp);
     let _ = writeln!(
         s,
@@ -302,31 +264,15 @@ pub fn describe(scene: &Scene) -> String {
     let _ = writeln!(s, "shapes     {}", scene.shapes.len());
     let _ = writeln!(s, "triangles  {}", f.triangles);
     let _ = writeln!(s, "materials  {}", f.bsdf_types.join(", "));
-    let _ = writeln!(
-        s,
-        "lights     {} ({})",
-        scene.lights.len(),
-        f.light_types.join(", ")
-    );
+    let _ = writeln!(s, "lights     {} ({})", scene.lights.len(), f.light_types.join(", "));
     let _ = writeln!(s, "textures   {} bitmap(s)", f.textures);
-    let _ = writeln!(
-        s,
-        "bounds     {:?} .. {:?}",
-        scene.bounds.min, scene.bounds.max
-    );
+    let _ = writeln!(s, "bounds     {:?} .. {:?}", scene.bounds.min, scene.bounds.max);
     let yes = |b: bool| if b { "yes" } else { "no" };
     let _ = writeln!(s, "needs      texture system: {}", yes(f.textures > 0));
-    let _ = writeln!(
-        s,
-        "           manifold walk (specular/glossy vertices): {}",
-        yes(f.needs_manifold_walk())
-    );
+    let _ =
+        writeln!(s, "           manifold walk (specular/glossy vertices): {}", yes(f.needs_manifold_walk()));
     let _ = writeln!(s, "           refraction: {}", yes(f.has_transmission));
-    let _ = writeln!(
-        s,
-        "           environment lighting: {}",
-        yes(!scene.infinite_lights.is_empty())
-    );
+    let _ = writeln!(s, "           environment lighting: {}", yes(!scene.infinite_lights.is_empty()));
     s
 }
 
@@ -336,52 +282,33 @@ fn run_bench(args: BenchArgs) -> anyhow::Result<i32> {
     let threads = pool.current_num_threads();
     let integrator = integrators::make(
         IntegratorKind::Path,
-        DepthLimits {
-            max_depth: scene.integrator.max_depth,
-            rr_depth: scene.integrator.rr_depth,
-        },
+        DepthLimits { max_depth: scene.integrator.max_depth, rr_depth: scene.integrator.rr_depth },
         scene.integrator.hide_emitters,
     );
-    let options = RenderOptions {
-        spp: Some(args.spp),
-        time_limit: None,
-        seed: 1,
-        progress: false,
-    };
+    let options = RenderOptions { spp: Some(args.spp), time_limit: None, seed: 1, progress: false };
     let never = AtomicBool::new(false);
     // Warm-up pass so page faults and lazy initialisation are not measured.
     pool.install(|| {
         render::render(
             &scene,
             integrator.as_ref(),
-            &RenderOptions {
-                spp: Some(1),
-                ..options.clone()
-            },
+            &RenderOptions { spp: Some(1), ..options.clone() },
             &never,
         )
     });
     let (_, plain) = pool.install(|| render::render(&scene, integrator.as_ref(), &options, &never));
     let nanos = Arc::new(AtomicU64::new(0));
-    scene.replace_accel(|inner| {
-        Box::new(crate::accel::timed::TimedQuery::new(inner, nanos.clone()))
-    });
+    scene.replace_accel(|inner| Box::new(crate::accel::timed::TimedQuery::new(inner, nanos.clone())));
     let (_, inst) = pool.install(|| render::render(&scene, integrator.as_ref(), &options, &never));
     let query_secs = nanos.load(Ordering::Relaxed) as f64 * 1e-9;
     let busy = inst.elapsed.as_secs_f64() * threads as f64;
     let secs = plain.elapsed.as_secs_f64().max(1e-9);
     println!("scene            {}", scene.path.display());
     println!("threads          {threads}");
-    println!(
-        "image            {} x {} at {} spp",
-        scene.film.width, scene.film.height, args.spp
-    );
+    println!("image            {} x {} at {} spp", scene.film.width, scene.film.height, args.spp);
     println!("samples/s        {:.0}", plain.samples as f64 / secs);
     println!("rays/s           {:.0}", plain.rays as f64 / secs);
-    println!(
-        "rays per sample  {:.2}",
-        plain.rays as f64 / plain.samples.max(1) as f64
-    );
+    println!("rays per sample  {:.2}", plain.rays as f64 / plain.samples.max(1) as f64);
     println!(
         "time in {}   {:.1}% (timer overhead {:.1}%, measured in a second instrumented run)",
         scene.accel().name(),
@@ -393,41 +320,29 @@ fn run_bench(args: BenchArgs) -> anyhow::Result<i32> {
 
 /// Used by tests: loads a scene with overrides.
 pub fn load_scene(path: &Path, defines: &[(&str, &str)]) -> anyhow::Result<Scene> {
-    let defines = defines
-        .iter()
-        .map(|(k, v)| (k.to_string(), v.to_string()))
-        .collect();
-    Scene::load(
-        path,
-        &LoadOptions {
-            defines,
-            accel: AccelKind::Embree,
-        },
-    )
+    let defines = defines.iter().map(|(k, v)| (k.to_string(), v.to_string())).collect();
+    Scene::load(path, &LoadOptions { defines, accel: AccelKind::Embree })
 }
 
 /// Renders a loaded scene in-process with a given integrator (tests and the comparison tooling).
-pub fn render_scene(
+pub fn render_scene(scene: &Scene, kind: IntegratorKind, spp: u32, seed: u64) -> (ImageBuf, RenderStats) {
+    let (film, stats) = render_scene_film(scene, kind, spp, seed);
+    (film.to_image(), stats)
+}
+
+/// As `render_scene`, returning the film (for per-pixel variances).
+pub fn render_scene_film(
     scene: &Scene,
     kind: IntegratorKind,
     spp: u32,
     seed: u64,
-) -> (ImageBuf, RenderStats) {
+) -> (render::Film, RenderStats) {
     let integrator = integrators::make(
         kind,
-        DepthLimits {
-            max_depth: scene.integrator.max_depth,
-            rr_depth: scene.integrator.rr_depth,
-        },
+        DepthLimits { max_depth: scene.integrator.max_depth, rr_depth: scene.integrator.rr_depth },
         scene.integrator.hide_emitters,
     );
-    let options = RenderOptions {
-        spp: Some(spp),
-        time_limit: None,
-        seed,
-        progress: false,
-    };
+    let options = RenderOptions { spp: Some(spp), time_limit: None, seed, progress: false };
     let never = AtomicBool::new(false);
-    let (film, stats) = render::render(scene, integrator.as_ref(), &options, &never);
-    (film.to_image(), stats)
+    render::render(scene, integrator.as_ref(), &options, &never)
 }

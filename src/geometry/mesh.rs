@@ -23,11 +23,7 @@ impl TriangleMesh {
 
     pub fn vertices(&self, prim: usize) -> [Vec3; 3] {
         let [a, b, c] = self.indices[prim];
-        [
-            self.positions[a as usize],
-            self.positions[b as usize],
-            self.positions[c as usize],
-        ]
+        [self.positions[a as usize], self.positions[b as usize], self.positions[c as usize]]
     }
 
     pub fn area(&self, prim: usize) -> f32 {

@@ -22,21 +22,11 @@ pub struct Ray {
 
 impl Ray {
     pub fn new(origin: Vec3, dir: Vec3) -> Self {
-        Ray {
-            origin,
-            dir,
-            tmin: 0.0,
-            tmax: f32::INFINITY,
-        }
+        Ray { origin, dir, tmin: 0.0, tmax: f32::INFINITY }
     }
 
     pub fn segment(origin: Vec3, dir: Vec3, tmax: f32) -> Self {
-        Ray {
-            origin,
-            dir,
-            tmin: 0.0,
-            tmax,
-        }
+        Ray { origin, dir, tmin: 0.0, tmax }
     }
 
     pub fn at(&self, t: f32) -> Vec3 {
@@ -53,10 +43,7 @@ pub struct Bounds3 {
 
 impl Default for Bounds3 {
     fn default() -> Self {
-        Bounds3 {
-            min: Vec3::splat(f32::INFINITY),
-            max: Vec3::splat(f32::NEG_INFINITY),
-        }
+        Bounds3 { min: Vec3::splat(f32::INFINITY), max: Vec3::splat(f32::NEG_INFINITY) }
     }
 }
 
@@ -67,10 +54,7 @@ impl Bounds3 {
     }
 
     pub fn union(&self, other: &Bounds3) -> Bounds3 {
-        Bounds3 {
-            min: self.min.min(other.min),
-            max: self.max.max(other.max),
-        }
+        Bounds3 { min: self.min.min(other.min), max: self.max.max(other.max) }
     }
 
     pub fn is_empty(&self) -> bool {

@@ -11,10 +11,7 @@ pub struct Transform {
 
 impl Default for Transform {
     fn default() -> Self {
-        Transform {
-            matrix: Mat4::IDENTITY,
-            inverse: Mat4::IDENTITY,
-        }
+        Transform { matrix: Mat4::IDENTITY, inverse: Mat4::IDENTITY }
     }
 }
 

@@ -111,9 +111,7 @@ fn layer_channels(img: &ImageBuf) -> anyhow::Result<AnyChannels<FlatSamples>> {
     let pixels = img.width * img.height;
     let mut list: SmallVec<[AnyChannel<FlatSamples>; 4]> = SmallVec::new();
     for (c, name) in names.iter().enumerate() {
-        let plane: Vec<f32> = (0..pixels)
-            .map(|p| img.data[p * img.channels + c])
-            .collect();
+        let plane: Vec<f32> = (0..pixels).map(|p| img.data[p * img.channels + c]).collect();
         list.push(AnyChannel::new(*name, FlatSamples::F32(plane)));
     }
     Ok(AnyChannels::sort(list))
@@ -134,10 +132,7 @@ fn apply_metadata(attrs: &mut LayerAttributes, meta: &Metadata) -> anyhow::Resul
         match text_field(attrs, key) {
             Some(field) => *field = Some(text_from_str(value)),
             None => {
-                attrs.other.insert(
-                    text_from_str(key),
-                    AttributeValue::Text(text_from_str(value)),
-                );
+                attrs.other.insert(text_from_str(key), AttributeValue::Text(text_from_str(value)));
             }
         }
     }
@@ -149,17 +144,14 @@ fn build_image(
     layers: &[(&str, &ImageBuf)],
     meta: &Metadata,
 ) -> anyhow::Result<Image<Layers<AnyChannels<FlatSamples>>>> {
-    let (_, main) = layers
-        .first()
-        .ok_or_else(|| anyhow::anyhow!("no layers to write"))?;
+    let (_, main) = layers.first().ok_or_else(|| anyhow::anyhow!("no layers to write"))?;
     if main.width == 0 || main.height == 0 {
         anyhow::bail!("image is empty ({}x{})", main.width, main.height);
     }
     let mut names = std::collections::HashSet::new();
     let mut parts = Vec::with_capacity(layers.len());
     for (index, (name, img)) in layers.iter().enumerate() {
-        img.check_layout()
-            .with_context(|| format!("layer {name:?}"))?;
+        img.check_layout().with_context(|| format!("layer {name:?}"))?;
         if (img.width, img.height) != (main.width, main.height) {
             anyhow::bail!(
                 "layer {name:?} is {}x{} but the main image is {}x{}",
@@ -172,9 +164,7 @@ fn build_image(
         let mut attrs = if layers.len() > 1 {
             // Multi-part files need a distinct, non-empty name on every part.
             if name.is_empty() {
-                anyhow::bail!(
-                    "layer {index} has an empty name; every layer of a multi-layer EXR needs one"
-                );
+                anyhow::bail!("layer {index} has an empty name; every layer of a multi-layer EXR needs one");
             }
             if !names.insert(*name) {
                 anyhow::bail!("layer name {name:?} is used twice");
@@ -197,8 +187,7 @@ fn build_image(
             layer_channels(img).with_context(|| format!("layer {name:?}"))?,
         ));
     }
-    let attributes =
-        ImageAttributes::new(IntegerBounds::from_dimensions((main.width, main.height)));
+    let attributes = ImageAttributes::new(IntegerBounds::from_dimensions((main.width, main.height)));
     Ok(Image::from_layers(attributes, parts))
 }
 
@@ -209,10 +198,7 @@ pub(super) fn write_layers_to(
     meta: &Metadata,
 ) -> anyhow::Result<()> {
     let image = build_image(layers, meta)?;
-    image
-        .write()
-        .to_file(path)
-        .map_err(|e| anyhow::anyhow!("EXR encoding failed: {e}"))
+    image.write().to_file(path).map_err(|e| anyhow::anyhow!("EXR encoding failed: {e}"))
 }
 
 /// Picks the colour channels of a flat part: `R,G,B` (+`A`) or `Y` (+`A`), either bare or all with
@@ -236,14 +222,8 @@ fn pick_channels(names: &[String]) -> Option<Vec<usize>> {
             }
         };
         let alpha = find(&full("A"));
-        if let (Some(r), Some(g), Some(b)) = (find(&full("R")), find(&full("G")), find(&full("B")))
-        {
-            return Some(
-                [Some(r), Some(g), Some(b), alpha]
-                    .into_iter()
-                    .flatten()
-                    .collect(),
-            );
+        if let (Some(r), Some(g), Some(b)) = (find(&full("R")), find(&full("G")), find(&full("B"))) {
+            return Some([Some(r), Some(g), Some(b), alpha].into_iter().flatten().collect());
         }
         if let Some(y) = find(&full("Y")) {
             return Some([Some(y), alpha].into_iter().flatten().collect());
@@ -261,22 +241,9 @@ fn sample_as_f32(samples: &FlatSamples, index: usize) -> f32 {
 }
 
 /// Converts one decoded part into an interleaved buffer, naming `path` and the part in errors.
-fn part_to_buf(
-    path: &Path,
-    layer: &Layer<AnyChannels<FlatSamples>>,
-) -> anyhow::Result<(String, ImageBuf)> {
-    let name = layer
-        .attributes
-        .layer_name
-        .as_ref()
-        .map(text_to_string)
-        .unwrap_or_default();
-    let names: Vec<String> = layer
-        .channel_data
-        .list
-        .iter()
-        .map(|c| text_to_string(&c.name))
-        .collect();
+fn part_to_buf(path: &Path, layer: &Layer<AnyChannels<FlatSamples>>) -> anyhow::Result<(String, ImageBuf)> {
+    let name = layer.attributes.layer_name.as_ref().map(text_to_string).unwrap_or_default();
+    let names: Vec<String> = layer.channel_data.list.iter().map(|c| text_to_string(&c.name)).collect();
     let picked = pick_channels(&names).ok_or_else(|| {
         anyhow::anyhow!(
             "{}: EXR part {name:?} has no R,G,B or Y channels (found: {})",
@@ -308,11 +275,7 @@ pub fn read(path: &Path) -> anyhow::Result<ImageBuf> {
 pub fn read_layers(path: &Path) -> anyhow::Result<Vec<(String, ImageBuf)>> {
     let image = read_all_flat_layers_from_file(path)
         .map_err(|e| anyhow::anyhow!("{}: cannot read EXR: {e}", path.display()))?;
-    image
-        .layer_data
-        .iter()
-        .map(|layer| part_to_buf(path, layer))
-        .collect()
+    image.layer_data.iter().map(|layer| part_to_buf(path, layer)).collect()
 }
 
 /// Reads the string attributes of the first part (where `write_image`/`write_exr_layers` put the
@@ -320,10 +283,8 @@ pub fn read_layers(path: &Path) -> anyhow::Result<Vec<(String, ImageBuf)>> {
 pub fn read_metadata(path: &Path) -> anyhow::Result<Metadata> {
     let meta = exr::meta::MetaData::read_from_file(path, false)
         .map_err(|e| anyhow::anyhow!("{}: cannot read EXR header: {e}", path.display()))?;
-    let header = meta
-        .headers
-        .first()
-        .ok_or_else(|| anyhow::anyhow!("{}: EXR file has no header", path.display()))?;
+    let header =
+        meta.headers.first().ok_or_else(|| anyhow::anyhow!("{}: EXR file has no header", path.display()))?;
     let mut attrs = header.own_attributes.clone();
     let mut out: Metadata = Vec::new();
     for key in TEXT_FIELD_KEYS {

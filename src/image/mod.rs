@@ -27,12 +27,7 @@ pub struct ImageBuf {
 
 impl ImageBuf {
     pub fn new(width: usize, height: usize, channels: usize) -> ImageBuf {
-        ImageBuf {
-            width,
-            height,
-            channels,
-            data: vec![0.0; width * height * channels],
-        }
+        ImageBuf { width, height, channels, data: vec![0.0; width * height * channels] }
     }
 
     pub fn pixel(&self, x: usize, y: usize) -> &[f32] {
@@ -62,10 +57,7 @@ impl ImageBuf {
         if !(1..=4).contains(&self.channels) {
             anyhow::bail!("{} channels per pixel (expected 1 to 4)", self.channels);
         }
-        let expected = self
-            .width
-            .checked_mul(self.height)
-            .and_then(|n| n.checked_mul(self.channels));
+        let expected = self.width.checked_mul(self.height).and_then(|n| n.checked_mul(self.channels));
         if expected != Some(self.data.len()) {
             anyhow::bail!(
                 "pixel buffer holds {} values but {}x{}x{} needs {}",
@@ -171,9 +163,7 @@ enum Format {
 const SUPPORTED_OUTPUT: &str = ".exr, .png, .jpg/.jpeg, .tif/.tiff, .hdr";
 
 fn extension_lowercase(path: &Path) -> Option<String> {
-    path.extension()
-        .and_then(|e| e.to_str())
-        .map(|e| e.to_ascii_lowercase())
+    path.extension().and_then(|e| e.to_str()).map(|e| e.to_ascii_lowercase())
 }
 
 fn output_format(path: &Path) -> anyhow::Result<Format> {
@@ -213,47 +203,30 @@ pub fn write_image(path: &Path, img: &ImageBuf, meta: &Metadata) -> anyhow::Resu
 /// (8-bit formats get clamped sRGB, TIFF/HDR linear float); .png through the `png` crate without
 /// the `oiio` feature. NaN/Inf are replaced by 0, counted in the report and, when any were found,
 /// recorded in the file's metadata under [`NON_FINITE_KEY`].
-pub fn write_image_with_report(
-    path: &Path,
-    img: &ImageBuf,
-    meta: &Metadata,
-) -> anyhow::Result<WriteReport> {
+pub fn write_image_with_report(path: &Path, img: &ImageBuf, meta: &Metadata) -> anyhow::Result<WriteReport> {
     let format = output_format(path)?;
-    img.check_layout()
-        .with_context(|| format!("{}: cannot write", path.display()))?;
+    img.check_layout().with_context(|| format!("{}: cannot write", path.display()))?;
     let (clean, replaced) = img.sanitized();
     let meta = with_non_finite_record(meta, replaced);
     write_atomically(path, |tmp| match format {
         Format::Exr => exr_io::write_layers_to(tmp, &[("", &clean)], &meta),
         _ => write_non_exr(tmp, format, &clean, &meta),
     })?;
-    Ok(WriteReport {
-        non_finite_replaced: replaced,
-    })
+    Ok(WriteReport { non_finite_replaced: replaced })
 }
 
 #[cfg(feature = "oiio")]
-fn write_non_exr(
-    tmp: &Path,
-    _format: Format,
-    img: &ImageBuf,
-    meta: &Metadata,
-) -> anyhow::Result<()> {
+fn write_non_exr(tmp: &Path, _format: Format, img: &ImageBuf, meta: &Metadata) -> anyhow::Result<()> {
     oiio::write(tmp, img, meta)
 }
 
 #[cfg(not(feature = "oiio"))]
-fn write_non_exr(
-    tmp: &Path,
-    format: Format,
-    img: &ImageBuf,
-    meta: &Metadata,
-) -> anyhow::Result<()> {
+fn write_non_exr(tmp: &Path, format: Format, img: &ImageBuf, meta: &Metadata) -> anyhow::Result<()> {
     match format {
         Format::Png => png_io::write(tmp, img, meta),
-        other => anyhow::bail!(
-            "writing {other:?} needs the `oiio` feature (this build only writes .exr and .png)"
-        ),
+        other => {
+            anyhow::bail!("writing {other:?} needs the `oiio` feature (this build only writes .exr and .png)")
+        }
     }
 }
 
@@ -266,16 +239,12 @@ pub fn write_exr_layers(
     meta: &Metadata,
 ) -> anyhow::Result<WriteReport> {
     if output_format(path)? != Format::Exr {
-        anyhow::bail!(
-            "{}: multi-layer output must have the .exr extension",
-            path.display()
-        );
+        anyhow::bail!("{}: multi-layer output must have the .exr extension", path.display());
     }
     let mut cleaned = Vec::with_capacity(layers.len());
     let mut replaced = 0;
     for (name, img) in layers {
-        img.check_layout()
-            .with_context(|| format!("{}: layer {name:?}", path.display()))?;
+        img.check_layout().with_context(|| format!("{}: layer {name:?}", path.display()))?;
         let (clean, count) = img.sanitized();
         replaced += count;
         cleaned.push((*name, clean));
@@ -283,9 +252,7 @@ pub fn write_exr_layers(
     let meta = with_non_finite_record(meta, replaced);
     let refs: Vec<(&str, &ImageBuf)> = cleaned.iter().map(|(n, img)| (*n, img)).collect();
     write_atomically(path, |tmp| exr_io::write_layers_to(tmp, &refs, &meta))?;
-    Ok(WriteReport {
-        non_finite_replaced: replaced,
-    })
+    Ok(WriteReport { non_finite_replaced: replaced })
 }
 
 /// String metadata of an EXR written by [`write_image`]/[`write_exr_layers`] (e.g. to resume from
@@ -366,10 +333,7 @@ fn temp_path_for(target: &Path) -> anyhow::Result<PathBuf> {
         .file_name()
         .ok_or_else(|| anyhow::anyhow!("{}: not a file path", target.display()))?
         .to_string_lossy();
-    let ext = target
-        .extension()
-        .map(|e| format!(".{}", e.to_string_lossy()))
-        .unwrap_or_default();
+    let ext = target.extension().map(|e| format!(".{}", e.to_string_lossy())).unwrap_or_default();
     let n = COUNTER.fetch_add(1, Ordering::Relaxed);
     let name = format!(".{file_name}.tmp-{}-{n}{ext}", std::process::id());
     Ok(match target.parent() {
@@ -381,28 +345,17 @@ fn temp_path_for(target: &Path) -> anyhow::Result<PathBuf> {
 /// Runs `write` on a temporary file next to `target`, fsyncs it and renames it over `target`, so
 /// readers never see a partial image. On any error the temporary file is removed and `target` is
 /// left untouched.
-fn write_atomically(
-    target: &Path,
-    write: impl FnOnce(&Path) -> anyhow::Result<()>,
-) -> anyhow::Result<()> {
+fn write_atomically(target: &Path, write: impl FnOnce(&Path) -> anyhow::Result<()>) -> anyhow::Result<()> {
     let tmp = temp_path_for(target)?;
     // create_new both reserves the name and gives a clear error for a missing/readonly directory.
     fs::OpenOptions::new()
         .write(true)
         .create_new(true)
         .open(&tmp)
-        .with_context(|| {
-            format!(
-                "{}: cannot create temporary file {}",
-                target.display(),
-                tmp.display()
-            )
-        })?;
+        .with_context(|| format!("{}: cannot create temporary file {}", target.display(), tmp.display()))?;
     let result = (|| -> anyhow::Result<()> {
         write(&tmp)?;
-        fs::File::open(&tmp)
-            .and_then(|f| f.sync_all())
-            .context("cannot flush the written data to disk")?;
+        fs::File::open(&tmp).and_then(|f| f.sync_all()).context("cannot flush the written data to disk")?;
         fs::rename(&tmp, target).context("cannot move the temporary file into place")?;
         Ok(())
     })();
@@ -463,10 +416,7 @@ mod tests {
         assert_eq!(output_format(Path::new("x.jpeg")).unwrap(), Format::Jpeg);
         assert_eq!(output_format(Path::new("x.tif")).unwrap(), Format::Tiff);
         let err = output_format(Path::new("out.bmp")).unwrap_err().to_string();
-        assert!(
-            err.contains("out.bmp") && err.contains(".bmp") && err.contains(".exr"),
-            "{err}"
-        );
+        assert!(err.contains("out.bmp") && err.contains(".bmp") && err.contains(".exr"), "{err}");
         let err = output_format(Path::new("noext")).unwrap_err().to_string();
         assert!(err.contains("(none)"), "{err}");
     }
@@ -476,24 +426,13 @@ mod tests {
         let tmp = temp_path_for(Path::new("/some/dir/render.png")).unwrap();
         assert_eq!(tmp.parent(), Some(Path::new("/some/dir")));
         let name = tmp.file_name().unwrap().to_string_lossy().into_owned();
-        assert!(
-            name.starts_with(".render.png.tmp-") && name.ends_with(".png"),
-            "{name}"
-        );
-        assert_ne!(
-            tmp,
-            temp_path_for(Path::new("/some/dir/render.png")).unwrap()
-        );
+        assert!(name.starts_with(".render.png.tmp-") && name.ends_with(".png"), "{name}");
+        assert_ne!(tmp, temp_path_for(Path::new("/some/dir/render.png")).unwrap());
     }
 
     #[test]
     fn linearize_skips_alpha() {
-        let mut img = ImageBuf {
-            width: 1,
-            height: 1,
-            channels: 2,
-            data: vec![0.5, 0.5],
-        };
+        let mut img = ImageBuf { width: 1, height: 1, channels: 2, data: vec![0.5, 0.5] };
         linearize(&mut img, ColorEncoding::Srgb);
         assert!((img.data[0] - 0.214_041).abs() < 1e-5);
         assert_eq!(img.data[1], 0.5);

@@ -22,17 +22,8 @@ struct RawImageInfo {
 extern "C" {
     fn hslt_oiio_free_string(s: *mut c_char);
     fn hslt_oiio_version() -> *mut c_char;
-    fn hslt_oiio_open(
-        path: *const c_char,
-        info: *mut RawImageInfo,
-        err: *mut *mut c_char,
-    ) -> *mut c_void;
-    fn hslt_oiio_read(
-        handle: *mut c_void,
-        out: *mut f32,
-        out_len: usize,
-        err: *mut *mut c_char,
-    ) -> c_int;
+    fn hslt_oiio_open(path: *const c_char, info: *mut RawImageInfo, err: *mut *mut c_char) -> *mut c_void;
+    fn hslt_oiio_read(handle: *mut c_void, out: *mut f32, out_len: usize, err: *mut *mut c_char) -> c_int;
     fn hslt_oiio_close(handle: *mut c_void);
     #[allow(clippy::too_many_arguments)]
     fn hslt_oiio_write(
@@ -72,8 +63,7 @@ fn path_to_cstring(path: &Path) -> anyhow::Result<CString> {
 }
 
 fn to_c_int(value: usize, what: &str) -> anyhow::Result<c_int> {
-    c_int::try_from(value)
-        .map_err(|_| anyhow::anyhow!("{what} {value} is too large for OpenImageIO"))
+    c_int::try_from(value).map_err(|_| anyhow::anyhow!("{what} {value} is too large for OpenImageIO"))
 }
 
 /// Version of the linked OpenImageIO library, e.g. "2.4.7".
@@ -114,21 +104,12 @@ pub fn read(path: &Path) -> anyhow::Result<(ImageBuf, ColorEncoding)> {
             info.channels
         );
     }
-    let (width, height, channels) = (
-        info.width as usize,
-        info.height as usize,
-        info.channels as usize,
-    );
+    let (width, height, channels) = (info.width as usize, info.height as usize, info.channels as usize);
     let len = width
         .checked_mul(height)
         .and_then(|n| n.checked_mul(channels))
         .ok_or_else(|| anyhow::anyhow!("{}: image is too large", path.display()))?;
-    let mut img = ImageBuf {
-        width,
-        height,
-        channels,
-        data: vec![0.0; len],
-    };
+    let mut img = ImageBuf { width, height, channels, data: vec![0.0; len] };
     // SAFETY: the handle is open; img.data has exactly `len` floats, which the shim checks against
     // the image size before writing; err is a valid out-pointer.
     let status = unsafe { hslt_oiio_read(handle.0, img.data.as_mut_ptr(), len, &mut err) };
@@ -160,17 +141,10 @@ pub fn write(path: &Path, img: &ImageBuf, meta: &Metadata) -> anyhow::Result<()>
     let channels = to_c_int(img.channels, "channel count")?;
     let mut owned = Vec::with_capacity(meta.len() * 2);
     for (key, value) in meta {
-        let k = CString::new(key.as_str()).map_err(|_| {
-            anyhow::anyhow!(
-                "{}: metadata key {key:?} contains a NUL byte",
-                path.display()
-            )
-        })?;
+        let k = CString::new(key.as_str())
+            .map_err(|_| anyhow::anyhow!("{}: metadata key {key:?} contains a NUL byte", path.display()))?;
         let v = CString::new(value.as_str()).map_err(|_| {
-            anyhow::anyhow!(
-                "{}: metadata value of {key:?} contains a NUL byte",
-                path.display()
-            )
+            anyhow::anyhow!("{}: metadata value of {key:?} contains a NUL byte", path.display())
         })?;
         owned.push((k, v));
     }

@@ -17,10 +17,10 @@ pub fn write(path: &Path, img: &ImageBuf, meta: &Metadata) -> anyhow::Result<()>
         4 => png::ColorType::Rgba,
         n => anyhow::bail!("{n} channels per pixel cannot be written to PNG"),
     };
-    let width = u32::try_from(img.width)
-        .map_err(|_| anyhow::anyhow!("width {} too large for PNG", img.width))?;
-    let height = u32::try_from(img.height)
-        .map_err(|_| anyhow::anyhow!("height {} too large for PNG", img.height))?;
+    let width =
+        u32::try_from(img.width).map_err(|_| anyhow::anyhow!("width {} too large for PNG", img.width))?;
+    let height =
+        u32::try_from(img.height).map_err(|_| anyhow::anyhow!("height {} too large for PNG", img.height))?;
     let file = File::create(path)?;
     let mut encoder = png::Encoder::new(BufWriter::new(file), width, height);
     encoder.set_color(color);
@@ -43,8 +43,7 @@ pub fn write(path: &Path, img: &ImageBuf, meta: &Metadata) -> anyhow::Result<()>
 
 /// Reads a PNG as floats in [0, 1] (not yet linearised) and reports its transfer curve.
 pub fn read(path: &Path) -> anyhow::Result<(ImageBuf, ColorEncoding)> {
-    let fail =
-        |e: &dyn std::fmt::Display| anyhow::anyhow!("{}: cannot read PNG: {e}", path.display());
+    let fail = |e: &dyn std::fmt::Display| anyhow::anyhow!("{}: cannot read PNG: {e}", path.display());
     let file = File::open(path).map_err(|e| fail(&e))?;
     let mut decoder = png::Decoder::new(BufReader::new(file));
     // Expand palettes, low bit depths and tRNS so the output is always Gray/GrayA/RGB/RGBA at 8 or 16 bits.

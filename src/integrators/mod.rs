@@ -29,13 +29,7 @@ pub trait PixelIntegrator: Send + Sync {
     fn name(&self) -> &'static str;
 
     /// Radiance arriving along `-ray.dir` at the camera, estimated with the random stream `sampler`.
-    fn li(
-        &self,
-        scene: &Scene,
-        ray: &Ray,
-        sampler: &mut Sampler,
-        counters: &mut SampleCounters,
-    ) -> Spectrum;
+    fn li(&self, scene: &Scene, ray: &Ray, sampler: &mut Sampler, counters: &mut SampleCounters) -> Spectrum;
 }
 
 /// Path-length limits in Mitsuba 3's meaning (see `IntegratorSpec`).
@@ -58,9 +52,9 @@ impl IntegratorKind {
     pub fn parse(name: &str) -> Result<IntegratorKind, String> {
         match name {
             "pt" | "path" => Ok(IntegratorKind::Path),
-            "bdpt" | "pssmlt" | "mlt" | "hslt" | "hslt+mlt" | "memlt" => Err(format!(
-                "integrator '{name}' is not available in this build yet (available: pt)"
-            )),
+            "bdpt" | "pssmlt" | "mlt" | "hslt" | "hslt+mlt" | "memlt" => {
+                Err(format!("integrator '{name}' is not available in this build yet (available: pt)"))
+            }
             other => Err(format!("unknown integrator '{other}' (available: pt)")),
         }
     }
@@ -73,15 +67,8 @@ impl IntegratorKind {
 }
 
 /// Builds a pixel integrator.
-pub fn make(
-    kind: IntegratorKind,
-    limits: DepthLimits,
-    hide_emitters: bool,
-) -> Box<dyn PixelIntegrator> {
+pub fn make(kind: IntegratorKind, limits: DepthLimits, hide_emitters: bool) -> Box<dyn PixelIntegrator> {
     match kind {
-        IntegratorKind::Path => Box::new(PathTracer {
-            limits,
-            hide_emitters,
-        }),
+        IntegratorKind::Path => Box::new(PathTracer { limits, hide_emitters }),
     }
 }

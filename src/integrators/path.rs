@@ -45,10 +45,7 @@ impl PathTracer {
         let Some(ls) = light.sample_li(si.p, u, scene.radius()) else {
             return Spectrum::ZERO;
         };
-        let ctx = &BsdfContext {
-            mode: TransportMode::Radiance,
-            uv: si.uv,
-        };
+        let ctx = &BsdfContext { mode: TransportMode::Radiance, uv: si.uv };
         let wo_local = si.frame.to_local(ls.wi);
         let f = bsdf.eval(ctx, wi_local, wo_local) * wo_local.z.abs();
         if f == Spectrum::ZERO {
@@ -64,11 +61,8 @@ impl PathTracer {
             return Spectrum::ZERO;
         }
         let light_pdf = pmf * ls.pdf;
-        let weight = if ls.is_delta {
-            1.0
-        } else {
-            power_heuristic(light_pdf, bsdf.pdf(ctx, wi_local, wo_local))
-        };
+        let weight =
+            if ls.is_delta { 1.0 } else { power_heuristic(light_pdf, bsdf.pdf(ctx, wi_local, wo_local)) };
         f * ls.radiance * (weight / light_pdf)
     }
 }
@@ -133,8 +127,7 @@ impl PixelIntegrator for PathTracer {
                         }
                         Some(pv) if pv.delta => 1.0,
                         Some(pv) => {
-                            let light_pdf =
-                                scene.light_selector.pmf(li) * area.pdf_li(pv.p, si.p, si.ng);
+                            let light_pdf = scene.light_selector.pmf(li) * area.pdf_li(pv.p, si.p, si.ng);
                             power_heuristic(pv.bsdf_pdf, light_pdf)
                         }
                     };
@@ -147,15 +140,11 @@ impl PixelIntegrator for PathTracer {
             }
 
             let bsdf = scene.shapes[si.shape].bsdf.as_ref();
-            let ctx = BsdfContext {
-                mode: TransportMode::Radiance,
-                uv: si.uv,
-            };
+            let ctx = BsdfContext { mode: TransportMode::Radiance, uv: si.uv };
             let wi_local = si.frame.to_local(si.wi);
 
             if bsdf.lobes().has_smooth() && !scene.light_selector.is_empty() {
-                radiance +=
-                    throughput * self.direct_light(scene, &si, bsdf, wi_local, sampler, counters);
+                radiance += throughput * self.direct_light(scene, &si, bsdf, wi_local, sampler, counters);
             }
 
             let u_lobe = sampler.next_1d();
@@ -171,11 +160,7 @@ impl PixelIntegrator for PathTracer {
             if bs.lobe.contains(crate::bsdf::BsdfLobe::TRANSMISSION) {
                 eta *= bs.eta;
             }
-            prev = Some(PrevVertex {
-                p: si.p,
-                bsdf_pdf: bs.pdf,
-                delta: bs.lobe.is_delta(),
-            });
+            prev = Some(PrevVertex { p: si.p, bsdf_pdf: bs.pdf, delta: bs.lobe.is_delta() });
 
             if segments >= self.limits.rr_depth {
                 let q = (throughput.max_element() * eta * eta).min(0.95);

@@ -31,28 +31,15 @@ pub struct SurfacePoint {
 }
 
 impl AreaLight {
-    pub fn from_props(
-        props: &Props,
-        mesh: Arc<TriangleMesh>,
-        shape: usize,
-    ) -> Result<AreaLight, SceneError> {
+    pub fn from_props(props: &Props, mesh: Arc<TriangleMesh>, shape: usize) -> Result<AreaLight, SceneError> {
         props.expect_only(&["radiance"], &["texture"])?;
         let radiance = Texture::from_param(props, "radiance", Vec3::ONE)?;
         check_emission(props, "radiance", radiance.mean())?;
-        let areas: Vec<f64> = (0..mesh.triangle_count())
-            .map(|i| mesh.area(i) as f64)
-            .collect();
-        let triangles = Distribution1D::new(&areas).ok_or_else(|| {
-            props.error(format!("the emitting shape '{}' has zero area", mesh.name))
-        })?;
+        let areas: Vec<f64> = (0..mesh.triangle_count()).map(|i| mesh.area(i) as f64).collect();
+        let triangles = Distribution1D::new(&areas)
+            .ok_or_else(|| props.error(format!("the emitting shape '{}' has zero area", mesh.name)))?;
         let total_area = triangles.total() as f32;
-        Ok(AreaLight {
-            mesh,
-            shape,
-            radiance,
-            triangles,
-            total_area,
-        })
+        Ok(AreaLight { mesh, shape, radiance, triangles, total_area })
     }
 
     pub fn total_area(&self) -> f32 {
@@ -87,9 +74,7 @@ impl AreaLight {
         let p = m.positions[i0] * b0 + m.positions[i1] * b.x + m.positions[i2] * b.y;
         let ng = m.geometric_normal(tri);
         let ns = match &m.normals {
-            Some(n) => (n[i0] * b0 + n[i1] * b.x + n[i2] * b.y)
-                .try_normalize()
-                .unwrap_or(ng),
+            Some(n) => (n[i0] * b0 + n[i1] * b.x + n[i2] * b.y).try_normalize().unwrap_or(ng),
             None => ng,
         };
         let uv = match &m.uvs {
@@ -117,14 +102,7 @@ impl AreaLight {
             return None;
         }
         let pdf = self.pdf_area() * dist2 / cos_light;
-        pdf.is_finite().then_some(LightSample {
-            p: sp.p,
-            wi,
-            dist,
-            radiance,
-            pdf,
-            is_delta: false,
-        })
+        pdf.is_finite().then_some(LightSample { p: sp.p, wi, dist, radiance, pdf, is_delta: false })
     }
 
     /// Solid-angle density of `sample_li` choosing light point `q` (geometric normal `ng`) from `p`.
@@ -140,12 +118,7 @@ impl AreaLight {
 
     /// The emitter-side description of a ray hit on this light's shape.
     pub fn surface_point(&self, si: &crate::scene::SurfaceInteraction) -> SurfacePoint {
-        SurfacePoint {
-            p: si.p,
-            ng: si.ng,
-            ns: si.frame.n,
-            uv: si.uv,
-        }
+        SurfacePoint { p: si.p, ng: si.ng, ns: si.frame.n, uv: si.uv }
     }
 
     pub fn power(&self) -> f32 {

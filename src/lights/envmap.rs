@@ -26,17 +26,14 @@ pub struct EnvMap {
 impl EnvMap {
     pub fn from_props(props: &Props, base_dir: &std::path::Path) -> Result<EnvMap, SceneError> {
         props.expect_only(&["filename", "scale", "to_world"], &[])?;
-        let filename = props
-            .string_opt("filename")?
-            .ok_or_else(|| props.error("the envmap needs a 'filename'"))?;
+        let filename =
+            props.string_opt("filename")?.ok_or_else(|| props.error("the envmap needs a 'filename'"))?;
         let path = base_dir.join(&filename);
-        let img = crate::image::read_image(&path, true).map_err(|e| {
-            props.error_at("filename", format!("cannot read environment map: {e:#}"))
-        })?;
+        let img = crate::image::read_image(&path, true)
+            .map_err(|e| props.error_at("filename", format!("cannot read environment map: {e:#}")))?;
         let scale = props.float("scale", 1.0)?;
-        let to_world = Transform::new(props.transform("to_world")?).ok_or_else(|| {
-            props.error_at("to_world", "the envmap's to_world matrix is singular")
-        })?;
+        let to_world = Transform::new(props.transform("to_world")?)
+            .ok_or_else(|| props.error_at("to_world", "the envmap's to_world matrix is singular"))?;
         let env = EnvMap::from_image(&img, scale, to_world).map_err(|m| props.error(m))?;
         check_emission(props, "scale", Vec3::splat(scale))?;
         Ok(env)
@@ -56,9 +53,7 @@ impl EnvMap {
                     _ => Vec3::new(px[0], px[1], px[2]),
                 } * scale;
                 if !c.is_finite() || c.min_element() < 0.0 {
-                    return Err(format!(
-                        "pixel ({x}, {y}) of the environment map is negative or not finite"
-                    ));
+                    return Err(format!("pixel ({x}, {y}) of the environment map is negative or not finite"));
                 }
                 pixels.push(c);
             }
@@ -68,29 +63,17 @@ impl EnvMap {
         let mut lum_sum = 0.0f64;
         for y in 0..h {
             let sin_theta = (PI * (y as f32 + 0.5) / h as f32).sin();
-            let weights: Vec<f64> = (0..w)
-                .map(|x| (luminance(pixels[y * w + x]) * sin_theta) as f64)
-                .collect();
-            lum_sum += (0..w)
-                .map(|x| luminance(pixels[y * w + x]) as f64 * sin_theta as f64)
-                .sum::<f64>();
+            let weights: Vec<f64> =
+                (0..w).map(|x| (luminance(pixels[y * w + x]) * sin_theta) as f64).collect();
+            lum_sum += (0..w).map(|x| luminance(pixels[y * w + x]) as f64 * sin_theta as f64).sum::<f64>();
             row_weights.push(weights.iter().sum::<f64>());
             cols.push(Distribution1D::new(&weights));
         }
-        let rows =
-            Distribution1D::new(&row_weights).ok_or("the environment map is black everywhere")?;
+        let rows = Distribution1D::new(&row_weights).ok_or("the environment map is black everywhere")?;
         // Mean over the sphere: Σ L sinθ ΔθΔφ / 4π with Δθ = π/h, Δφ = 2π/w.
-        let mean_luminance = (lum_sum * (PI as f64 / h as f64) * (2.0 * PI as f64 / w as f64)
-            / (4.0 * PI as f64)) as f32;
-        Ok(EnvMap {
-            width: w,
-            height: h,
-            pixels,
-            to_world,
-            rows,
-            cols,
-            mean_luminance,
-        })
+        let mean_luminance =
+            (lum_sum * (PI as f64 / h as f64) * (2.0 * PI as f64 / w as f64) / (4.0 * PI as f64)) as f32;
+        Ok(EnvMap { width: w, height: h, pixels, to_world, rows, cols, mean_luminance })
     }
 
     pub fn mean_luminance(&self) -> f32 {
@@ -132,21 +115,13 @@ impl EnvMap {
 
     /// Radiance seen when looking along world direction `dir`.
     pub fn eval(&self, dir: Vec3) -> Spectrum {
-        let local = self
-            .to_world
-            .inverse
-            .transform_vector3(dir)
-            .normalize_or_zero();
+        let local = self.to_world.inverse.transform_vector3(dir).normalize_or_zero();
         self.lookup(Self::local_to_uv(local))
     }
 
     /// Solid-angle density of `sample_li` returning `dir`.
     pub fn pdf(&self, dir: Vec3) -> f32 {
-        let local = self
-            .to_world
-            .inverse
-            .transform_vector3(dir)
-            .normalize_or_zero();
+        let local = self.to_world.inverse.transform_vector3(dir).normalize_or_zero();
         let uv = Self::local_to_uv(local);
         let x = ((uv.x * self.width as f32) as usize).min(self.width - 1);
         let y = ((uv.y * self.height as f32) as usize).min(self.height - 1);
@@ -163,10 +138,7 @@ impl EnvMap {
     pub fn sample_li(&self, p: Vec3, u: Vec2, scene_radius: f32) -> Option<LightSample> {
         let (y, uy) = self.rows.sample(u.y);
         let (x, ux) = self.cols[y].as_ref()?.sample(u.x);
-        let uv = Vec2::new(
-            (x as f32 + ux) / self.width as f32,
-            (y as f32 + uy) / self.height as f32,
-        );
+        let uv = Vec2::new((x as f32 + ux) / self.width as f32, (y as f32 + uy) / self.height as f32);
         let local = Self::uv_to_local(uv);
         let wi = self.to_world.vector(local).normalize_or_zero();
         let pdf = self.pdf(wi);
@@ -194,11 +166,7 @@ mod tests {
         let uv = EnvMap::local_to_uv(Vec3::new(1.0, 0.0, 0.0));
         assert!((uv - Vec2::new(0.25, 0.5)).length() < 1e-6, "{uv}");
         assert!(EnvMap::local_to_uv(Vec3::Y).y < 1e-6);
-        for &d in &[
-            Vec3::new(0.3, 0.5, -0.8),
-            Vec3::new(-0.6, -0.2, 0.77),
-            Vec3::new(0.1, 0.9, 0.4),
-        ] {
+        for &d in &[Vec3::new(0.3, 0.5, -0.8), Vec3::new(-0.6, -0.2, 0.77), Vec3::new(0.1, 0.9, 0.4)] {
             let d = d.normalize();
             let back = EnvMap::uv_to_local(EnvMap::local_to_uv(d));
             assert!((back - d).length() < 1e-5, "{d} -> {back}");
@@ -219,14 +187,9 @@ mod tests {
             for j in 0..2 * n {
                 let theta = PI * (i as f32 + 0.5) / n as f32;
                 let phi = 2.0 * PI * (j as f32 + 0.5) / (2 * n) as f32;
-                let d = Vec3::new(
-                    theta.sin() * phi.sin(),
-                    theta.cos(),
-                    -theta.sin() * phi.cos(),
-                );
-                integral += (env.pdf(d) * theta.sin()) as f64
-                    * (PI as f64 / n as f64)
-                    * (PI as f64 / n as f64);
+                let d = Vec3::new(theta.sin() * phi.sin(), theta.cos(), -theta.sin() * phi.cos());
+                integral +=
+                    (env.pdf(d) * theta.sin()) as f64 * (PI as f64 / n as f64) * (PI as f64 / n as f64);
             }
         }
         assert!((integral - 1.0).abs() < 5e-3, "∫pdf = {integral}");

@@ -129,10 +129,7 @@ impl Light {
 
 pub(crate) fn check_emission(props: &Props, name: &str, value: Spectrum) -> Result<(), SceneError> {
     if !value.is_finite() || value.min_element() < 0.0 {
-        return Err(props.error_at(
-            name,
-            format!("'{name}' must be finite and non-negative, got {value}"),
-        ));
+        return Err(props.error_at(name, format!("'{name}' must be finite and non-negative, got {value}")));
     }
     Ok(())
 }
@@ -161,17 +158,9 @@ impl LightSelector {
         // Mix with a uniform share so lights whose power estimate is poor are still found.
         let weights: Vec<f64> = powers
             .iter()
-            .map(|&p| {
-                if p > 0.0 {
-                    0.9 * p / total + 0.1 / lights.len() as f64
-                } else {
-                    0.0
-                }
-            })
+            .map(|&p| if p > 0.0 { 0.9 * p / total + 0.1 / lights.len() as f64 } else { 0.0 })
             .collect();
-        LightSelector {
-            distr: Distribution1D::new(&weights),
-        }
+        LightSelector { distr: Distribution1D::new(&weights) }
     }
 
     pub fn is_empty(&self) -> bool {

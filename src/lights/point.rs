@@ -23,10 +23,7 @@ impl PointLight {
         if !position.is_finite() {
             return Err(props.error("the point light's position is not finite"));
         }
-        Ok(PointLight {
-            position,
-            intensity,
-        })
+        Ok(PointLight { position, intensity })
     }
 
     pub fn sample_li(&self, p: Vec3) -> Option<LightSample> {

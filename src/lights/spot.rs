@@ -18,10 +18,7 @@ pub struct SpotLight {
 
 impl SpotLight {
     pub fn from_props(props: &Props) -> Result<SpotLight, SceneError> {
-        props.expect_only(
-            &["intensity", "cutoff_angle", "beam_width", "to_world"],
-            &[],
-        )?;
+        props.expect_only(&["intensity", "cutoff_angle", "beam_width", "to_world"], &[])?;
         let intensity = props.rgb("intensity", Vec3::ONE)?;
         check_emission(props, "intensity", intensity)?;
         let cutoff_deg = props.float("cutoff_angle", 20.0)?;
@@ -30,20 +27,11 @@ impl SpotLight {
             return Err(props.error_at("cutoff_angle", "cutoff_angle must lie in (0, 180] degrees"));
         }
         if !(beam_deg > 0.0 && beam_deg <= cutoff_deg) {
-            return Err(props.error_at(
-                "beam_width",
-                "beam_width must lie in (0, cutoff_angle] degrees",
-            ));
+            return Err(props.error_at("beam_width", "beam_width must lie in (0, cutoff_angle] degrees"));
         }
-        let to_world = Transform::new(props.transform("to_world")?).ok_or_else(|| {
-            props.error_at("to_world", "the spot light's to_world matrix is singular")
-        })?;
-        Ok(SpotLight {
-            to_world,
-            intensity,
-            cutoff: cutoff_deg.to_radians(),
-            beam: beam_deg.to_radians(),
-        })
+        let to_world = Transform::new(props.transform("to_world")?)
+            .ok_or_else(|| props.error_at("to_world", "the spot light's to_world matrix is singular"))?;
+        Ok(SpotLight { to_world, intensity, cutoff: cutoff_deg.to_radians(), beam: beam_deg.to_radians() })
     }
 
     pub fn position(&self) -> Vec3 {
@@ -52,11 +40,7 @@ impl SpotLight {
 
     /// Angular fall-off for a world direction leaving the light.
     pub fn falloff(&self, dir: Vec3) -> f32 {
-        let local = self
-            .to_world
-            .inverse
-            .transform_vector3(dir)
-            .normalize_or_zero();
+        let local = self.to_world.inverse.transform_vector3(dir).normalize_or_zero();
         let theta = local.z.clamp(-1.0, 1.0).acos();
         if theta >= self.cutoff {
             0.0

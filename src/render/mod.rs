@@ -11,7 +11,6 @@ use crate::integrators::{PixelIntegrator, SampleCounters};
 use crate::sampling::Sampler;
 use crate::scene::Scene;
 use crate::spectrum::Spectrum;
-use glam::Vec2;
 use rayon::prelude::*;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::{Duration, Instant};
@@ -94,15 +93,7 @@ pub fn render(
                 if cancel.load(Ordering::Relaxed) {
                     return None;
                 }
-                let r = render_tile(
-                    scene,
-                    integrator,
-                    options.seed,
-                    tile,
-                    first_sample,
-                    pass_size,
-                    width,
-                );
+                let r = render_tile(scene, integrator, options.seed, tile, first_sample, pass_size, width);
                 invalid.fetch_add(r.invalid, Ordering::Relaxed);
                 rays.fetch_add(r.counters.rays, Ordering::Relaxed);
                 if let Some(pb) = &progress {
@@ -117,7 +108,7 @@ pub fn render(
         for (tile, r) in tiles.iter().zip(results) {
             match r {
                 Some(r) => {
-                    film.add_tile(tile.x, tile.y, tile.w, tile.h, &r.sums, pass_size);
+                    film.add_tile((tile.x, tile.y, tile.w, tile.h), &r.sums, &r.squares, pass_size);
                     stats.samples += r.added;
                 }
                 None => complete = false,
@@ -169,12 +160,7 @@ fn tile_grid(width: usize, height: usize) -> Vec<Tile> {
     let mut tiles = Vec::new();
     for y in (0..height).step_by(TILE) {
         for x in (0..width).step_by(TILE) {
-            tiles.push(Tile {
-                x,
-                y,
-                w: TILE.min(width - x),
-                h: TILE.min(height - y),
-            });
+            tiles.push(Tile { x, y, w: TILE.min(width - x), h: TILE.min(height - y) });
         }
     }
     tiles
@@ -183,6 +169,7 @@ fn tile_grid(width: usize, height: usize) -> Vec<Tile> {
 struct TileResult {
     /// Per-pixel sums of this pass, in f64 so long renders do not lose small contributions.
     sums: Vec<[f64; 3]>,
+    squares: Vec<[f64; 3]>,
     added: u64,
     invalid: u64,
     counters: SampleCounters,
@@ -198,6 +185,7 @@ fn render_tile(
     width: usize,
 ) -> TileResult {
     let mut sums = vec![[0.0f64; 3]; tile.w * tile.h];
+    let mut squares = vec![[0.0f64; 3]; tile.w * tile.h];
     let mut counters = SampleCounters::default();
     let (mut added, mut invalid) = (0u64, 0u64);
     for py in 0..tile.h {
@@ -205,16 +193,17 @@ fn render_tile(
             let (x, y) = (tile.x + px, tile.y + py);
             let pixel_index = (y * width + x) as u64;
             let acc = &mut sums[py * tile.w + px];
+            let acc2 = &mut squares[py * tile.w + px];
             for s in first_sample..first_sample + count {
                 let mut sampler = Sampler::new(seed, pixel_index, s as u64);
-                let offset = scene.film.rfilter.sample(sampler.next_2d());
-                let pos = Vec2::new(x as f32 + 0.5, y as f32 + 0.5) + offset;
+                let pos = film_position(scene, x, y, &mut sampler);
                 let ray = scene.camera.generate_ray(pos);
                 let l: Spectrum = integrator.li(scene, &ray, &mut sampler, &mut counters);
                 if l.is_finite() && l.min_element() >= 0.0 {
-                    acc[0] += l.x as f64;
-                    acc[1] += l.y as f64;
-                    acc[2] += l.z as f64;
+                    for (c, v) in [l.x, l.y, l.z].into_iter().enumerate() {
+                        acc[c] += v as f64;
+                        acc2[c] += v as f64 * v as f64;
+                    }
                 } else {
                     // Counted and dropped; the pixel's sample count still advances, which keeps the
                     // estimator consistent (a zero sample) instead of biasing it upwards.
@@ -224,12 +213,25 @@ fn render_tile(
             }
         }
     }
-    TileResult {
-        sums,
-        added,
-        invalid,
-        counters,
+    TileResult { sums, squares, added, invalid, counters }
+}
+
+/// A film position for pixel (x, y) drawn from the reconstruction filter around the pixel centre,
+/// truncated to the image: Mitsuba only places samples inside the film, so its border pixels see a
+/// filter cut at the edge, and rejection reproduces exactly that truncated distribution.
+fn film_position(scene: &Scene, x: usize, y: usize, sampler: &mut Sampler) -> glam::Vec2 {
+    use glam::Vec2;
+    let centre = Vec2::new(x as f32 + 0.5, y as f32 + 0.5);
+    let size = Vec2::new(scene.film.width as f32, scene.film.height as f32);
+    let mut pos = centre;
+    for _ in 0..32 {
+        pos = centre + scene.film.rfilter.sample(sampler.next_2d());
+        if pos.x >= 0.0 && pos.y >= 0.0 && pos.x < size.x && pos.y < size.y {
+            return pos;
+        }
     }
+    // Practically unreachable (the pixel centre itself is inside): fall back to a clamped position.
+    pos.clamp(Vec2::ZERO, size - Vec2::splat(1e-3))
 }
 
 fn make_progress(

@@ -58,11 +58,7 @@ impl Distribution1D {
         }
         let lo = self.cdf[idx];
         let width = self.cdf[idx + 1] - lo;
-        let rescaled = if width > 0.0 {
-            ((u - lo) / width).clamp(0.0, 1.0 - f64::EPSILON)
-        } else {
-            0.0
-        };
+        let rescaled = if width > 0.0 { ((u - lo) / width).clamp(0.0, 1.0 - f64::EPSILON) } else { 0.0 };
         (idx, rescaled as f32)
     }
 }

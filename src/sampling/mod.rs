@@ -31,15 +31,11 @@ impl Sampler {
     pub fn new(seed: u64, a: u64, b: u64) -> Sampler {
         let state = mix64(mix64(seed ^ 0x5851_F42D_4C95_7F2D).wrapping_add(a));
         let stream = mix64(state ^ b.wrapping_mul(0x2545_F491_4F6C_DD1D));
-        Sampler {
-            rng: Pcg32::new(state, stream),
-        }
+        Sampler { rng: Pcg32::new(state, stream) }
     }
 
     pub fn from_seed(seed: u64) -> Sampler {
-        Sampler {
-            rng: Pcg32::seed_from_u64(seed),
-        }
+        Sampler { rng: Pcg32::seed_from_u64(seed) }
     }
 
     /// Uniform in [0, 1).

@@ -15,20 +15,12 @@ pub struct SrcLoc {
 
 impl SrcLoc {
     pub fn new(file: &Path, line: u32, col: u32) -> SrcLoc {
-        SrcLoc {
-            file: Arc::new(file.to_path_buf()),
-            line,
-            col,
-        }
+        SrcLoc { file: Arc::new(file.to_path_buf()), line, col }
     }
 
     /// A location for things that come from no file (CLI overrides, built-in defaults).
     pub fn builtin() -> SrcLoc {
-        SrcLoc {
-            file: Arc::new(PathBuf::from("<builtin>")),
-            line: 0,
-            col: 0,
-        }
+        SrcLoc { file: Arc::new(PathBuf::from("<builtin>")), line: 0, col: 0 }
     }
 }
 
@@ -53,20 +45,12 @@ pub struct SceneError {
 
 impl SceneError {
     pub fn new(loc: SrcLoc, element: Option<String>, message: impl Into<String>) -> SceneError {
-        SceneError {
-            loc,
-            element,
-            message: message.into(),
-        }
+        SceneError { loc, element, message: message.into() }
     }
 
     /// An error about a whole file (unreadable, not XML, truncated mesh...).
     pub fn file(path: &Path, message: impl Into<String>) -> SceneError {
-        SceneError {
-            loc: SrcLoc::new(path, 0, 0),
-            element: None,
-            message: message.into(),
-        }
+        SceneError { loc: SrcLoc::new(path, 0, 0), element: None, message: message.into() }
     }
 }
 

@@ -42,9 +42,7 @@ impl SurfaceInteraction {
         };
         let ns = match &mesh.normals {
             Some(n) => {
-                let ns = (n[i0] * b0 + n[i1] * b1 + n[i2] * b2)
-                    .try_normalize()
-                    .unwrap_or(ng);
+                let ns = (n[i0] * b0 + n[i1] * b1 + n[i2] * b2).try_normalize().unwrap_or(ng);
                 if ns.is_finite() {
                     ns
                 } else {
@@ -65,16 +63,7 @@ impl SurfaceInteraction {
         let tangent = dpdu.unwrap_or(p1 - p0);
         let frame = Frame::from_normal_tangent(ns, tangent);
         let wi = -ray.dir;
-        Some(SurfaceInteraction {
-            p,
-            t: hit.t,
-            ng,
-            frame,
-            uv,
-            wi,
-            shape,
-            prim,
-        })
+        Some(SurfaceInteraction { p, t: hit.t, ng, frame, uv, wi, shape, prim })
     }
 
     /// Spawns a ray leaving the surface in world direction `dir`, offset off the surface on its side.

@@ -43,12 +43,7 @@ pub struct IntegratorSpec {
 
 impl Default for IntegratorSpec {
     fn default() -> Self {
-        IntegratorSpec {
-            kind: "path".into(),
-            max_depth: -1,
-            rr_depth: 5,
-            hide_emitters: false,
-        }
+        IntegratorSpec { kind: "path".into(), max_depth: -1, rr_depth: 5, hide_emitters: false }
     }
 }
 
@@ -90,10 +85,7 @@ pub struct Scene {
 
 impl std::fmt::Debug for Scene {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("Scene")
-            .field("path", &self.path)
-            .field("shapes", &self.shapes.len())
-            .finish()
+        f.debug_struct("Scene").field("path", &self.path).field("shapes", &self.shapes.len()).finish()
     }
 }
 
@@ -142,27 +134,14 @@ impl Scene {
     /// (zero normal: no offset, for point lights and the camera).
     pub fn occluded_between(&self, a: Vec3, na: Vec3, b: Vec3, nb: Vec3) -> bool {
         let d = b - a;
-        let oa = if na == Vec3::ZERO {
-            a
-        } else {
-            crate::geometry::offset_origin(a, na, d)
-        };
-        let ob = if nb == Vec3::ZERO {
-            b
-        } else {
-            crate::geometry::offset_origin(b, nb, -d)
-        };
+        let oa = if na == Vec3::ZERO { a } else { crate::geometry::offset_origin(a, na, d) };
+        let ob = if nb == Vec3::ZERO { b } else { crate::geometry::offset_origin(b, nb, -d) };
         let seg = ob - oa;
         let len = seg.length();
         if !(len > 0.0) || !len.is_finite() {
             return true;
         }
-        let ray = Ray {
-            origin: oa,
-            dir: seg / len,
-            tmin: 0.0,
-            tmax: len * (1.0 - 1e-4),
-        };
+        let ray = Ray { origin: oa, dir: seg / len, tmin: 0.0, tmax: len * (1.0 - 1e-4) };
         self.accel.occluded(&ray)
     }
 
@@ -211,11 +190,7 @@ impl Builder {
             }
             // Declarations used through <ref>; instantiated where referenced.
             "bsdf" | "texture" => {}
-            other => {
-                return Err(obj
-                    .error(format!("unsupported top-level element <{other}>"))
-                    .into())
-            }
+            other => return Err(obj.error(format!("unsupported top-level element <{other}>")).into()),
         }
         Ok(())
     }
@@ -226,11 +201,7 @@ impl Builder {
         }
     }
 
-    fn bsdf_for(
-        &mut self,
-        props: &Arc<Props>,
-        base_dir: &Path,
-    ) -> Result<Arc<dyn Bsdf>, SceneError> {
+    fn bsdf_for(&mut self, props: &Arc<Props>, base_dir: &Path) -> Result<Arc<dyn Bsdf>, SceneError> {
         let key = Arc::as_ptr(props);
         if let Some(b) = self.bsdf_cache.get(&key) {
             return Ok(b.clone());
@@ -249,10 +220,7 @@ impl Builder {
         let loaded = shapes::load_shape(obj, base_dir)?;
         self.warnings.extend(loaded.warnings);
         let mut mesh = loaded.mesh;
-        let id = obj
-            .id
-            .clone()
-            .unwrap_or_else(|| format!("shape{}", self.shapes.len()));
+        let id = obj.id.clone().unwrap_or_else(|| format!("shape{}", self.shapes.len()));
         if mesh.name.is_empty() {
             mesh.name = id.clone();
         }
@@ -279,9 +247,7 @@ impl Builder {
         }
         if let Some(e) = emitters.first() {
             if e.plugin_type != "area" {
-                return Err(e
-                    .error("only 'area' emitters can be attached to a shape")
-                    .into());
+                return Err(e.error("only 'area' emitters can be attached to a shape").into());
             }
             let area = AreaLight::from_props(e, mesh.clone(), self.shapes.len())?;
             self.note_light(e);
@@ -289,20 +255,13 @@ impl Builder {
             self.lights.push(Light::Area(area));
         }
         self.features.triangles += mesh.triangle_count();
-        self.shapes.push(Shape {
-            id,
-            mesh,
-            bsdf,
-            light,
-        });
+        self.shapes.push(Shape { id, mesh, bsdf, light });
         Ok(())
     }
 
     fn finish(mut self, path: &Path, root: &Props, options: &LoadOptions) -> anyhow::Result<Scene> {
-        let camera_props = self
-            .camera_props
-            .clone()
-            .ok_or_else(|| root.error("the scene has no <sensor>"))?;
+        let camera_props =
+            self.camera_props.clone().ok_or_else(|| root.error("the scene has no <sensor>"))?;
         let film = match camera_props.objects_with_tag("film").next() {
             Some(f) => FilmSpec::from_props(f)?,
             None => FilmSpec::default(),
@@ -319,9 +278,7 @@ impl Builder {
                 s.expect_only(&["sample_count", "seed", "jitter"], &[])?;
                 let n = s.int("sample_count", 4)?;
                 if n < 1 {
-                    return Err(s
-                        .error_at("sample_count", "sample_count must be at least 1")
-                        .into());
+                    return Err(s.error_at("sample_count", "sample_count must be at least 1").into());
                 }
                 n.min(u32::MAX as i64) as u32
             }
@@ -342,9 +299,7 @@ impl Builder {
         let accel = crate::accel::build(options.accel, &meshes)?;
         let radius = bounds.radius().max(1e-3);
         let light_selector = LightSelector::new(&self.lights, radius);
-        let infinite_lights = (0..self.lights.len())
-            .filter(|&i| self.lights[i].is_infinite())
-            .collect();
+        let infinite_lights = (0..self.lights.len()).filter(|&i| self.lights[i].is_infinite()).collect();
         self.features.textures = count_bitmaps(root);
         Ok(Scene {
             path: path.to_path_buf(),
@@ -400,10 +355,7 @@ fn integrator_spec(p: &Props) -> Result<IntegratorSpec, SceneError> {
     let max_depth = p.int("max_depth", -1)?;
     let rr_depth = p.int("rr_depth", 5)?;
     if max_depth < -1 || max_depth == 0 {
-        return Err(p.error_at(
-            "max_depth",
-            "max_depth must be -1 (unbounded) or at least 1",
-        ));
+        return Err(p.error_at("max_depth", "max_depth must be -1 (unbounded) or at least 1"));
     }
     if rr_depth < 1 {
         return Err(p.error_at("rr_depth", "rr_depth must be at least 1"));

@@ -61,13 +61,7 @@ pub struct Props {
 
 impl Props {
     pub fn new(tag: &str, plugin_type: &str, loc: SrcLoc) -> Props {
-        Props {
-            tag: tag.into(),
-            plugin_type: plugin_type.into(),
-            id: None,
-            loc,
-            entries: Vec::new(),
-        }
+        Props { tag: tag.into(), plugin_type: plugin_type.into(), id: None, loc, entries: Vec::new() }
     }
 
     /// Adds or replaces a named parameter (nested objects without a name are always appended).
@@ -79,11 +73,7 @@ impl Props {
                 return;
             }
         }
-        self.entries.push(Prop {
-            name: name.into(),
-            value,
-            loc,
-        });
+        self.entries.push(Prop { name: name.into(), value, loc });
     }
 
     /// How this element is named in messages: `<bsdf type="diffuse" id="Floor">`.
@@ -101,10 +91,7 @@ impl Props {
 
     /// An error located at parameter `name` if present, else at the element.
     pub fn error_at(&self, name: &str, message: impl Into<String>) -> SceneError {
-        let loc = self
-            .get(name)
-            .map(|p| p.loc.clone())
-            .unwrap_or_else(|| self.loc.clone());
+        let loc = self.get(name).map(|p| p.loc.clone()).unwrap_or_else(|| self.loc.clone());
         SceneError::new(loc, Some(self.describe()), message)
     }
 
@@ -120,12 +107,7 @@ impl Props {
         SceneError::new(
             p.loc.clone(),
             Some(self.describe()),
-            format!(
-                "parameter '{}' is a {}, expected {}",
-                p.name,
-                p.value.kind(),
-                expected
-            ),
+            format!("parameter '{}' is a {}, expected {}", p.name, p.value.kind(), expected),
         )
     }
 
@@ -180,9 +162,7 @@ impl Props {
     }
 
     pub fn string(&self, name: &str, default: &str) -> Result<String, SceneError> {
-        Ok(self
-            .string_opt(name)?
-            .unwrap_or_else(|| default.to_string()))
+        Ok(self.string_opt(name)?.unwrap_or_else(|| default.to_string()))
     }
 
     /// A colour: `<rgb>`, a uniform `<spectrum>`, or a plain float taken as grey.
@@ -247,13 +227,8 @@ impl Props {
     }
 
     /// Nested plugins with a given tag (e.g. all `bsdf` children).
-    pub fn objects_with_tag<'a>(
-        &'a self,
-        tag: &'a str,
-    ) -> impl Iterator<Item = &'a Arc<Props>> + 'a {
-        self.objects()
-            .filter(move |(_, o)| o.tag == tag)
-            .map(|(_, o)| o)
+    pub fn objects_with_tag<'a>(&'a self, tag: &'a str) -> impl Iterator<Item = &'a Arc<Props>> + 'a {
+        self.objects().filter(move |(_, o)| o.tag == tag).map(|(_, o)| o)
     }
 
     /// Fails on any named parameter not in `known`, naming it and listing what this plugin accepts.
@@ -272,18 +247,11 @@ impl Props {
                 continue;
             }
             if !known.contains(&p.name.as_str()) {
-                let list = if known.is_empty() {
-                    "none".to_string()
-                } else {
-                    known.join(", ")
-                };
+                let list = if known.is_empty() { "none".to_string() } else { known.join(", ") };
                 return Err(SceneError::new(
                     p.loc.clone(),
                     Some(self.describe()),
-                    format!(
-                        "unknown parameter '{}' (this plugin accepts: {})",
-                        p.name, list
-                    ),
+                    format!("unknown parameter '{}' (this plugin accepts: {})", p.name, list),
                 ));
             }
         }
@@ -315,7 +283,6 @@ mod tests {
         let e = p.expect_only(&["alpha", "distribution"], &[]).unwrap_err();
         assert!(e.to_string().contains("unknown parameter 'eta'"), "{e}");
         assert!(e.to_string().starts_with("s.xml:6:1"), "{e}");
-        p.expect_only(&["alpha", "distribution", "eta"], &[])
-            .unwrap();
+        p.expect_only(&["alpha", "distribution", "eta"], &[]).unwrap();
     }
 }

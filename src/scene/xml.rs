@@ -18,62 +18,30 @@ pub fn parse_file(path: &Path, defines: &[(String, String)]) -> Result<Props, Sc
 }
 
 /// Parses scene XML held in memory; `path` is only used for messages (and is what `loc.file` holds).
-pub fn parse_str(
-    text: &str,
-    path: &Path,
-    defines: &[(String, String)],
-) -> Result<Props, SceneError> {
+pub fn parse_str(text: &str, path: &Path, defines: &[(String, String)]) -> Result<Props, SceneError> {
     let base_loc = SrcLoc::new(path, 0, 0);
     // roxmltree refuses DTDs (and therefore entity expansion) by default, which is what we want.
     let doc = Document::parse(text).map_err(|e| {
         let pos = e.pos();
-        SceneError::new(
-            at(&base_loc, pos.row, pos.col),
-            None,
-            format!("malformed XML: {e}"),
-        )
+        SceneError::new(at(&base_loc, pos.row, pos.col), None, format!("malformed XML: {e}"))
     })?;
-    let mut parser = XmlParser {
-        doc: &doc,
-        base_loc,
-        params: defines.to_vec(),
-        ids: HashMap::new(),
-    };
+    let mut parser = XmlParser { doc: &doc, base_loc, params: defines.to_vec(), ids: HashMap::new() };
     parser.parse_root(doc.root_element())
 }
 
 fn at(base: &SrcLoc, line: u32, col: u32) -> SrcLoc {
-    SrcLoc {
-        file: base.file.clone(),
-        line,
-        col,
-    }
+    SrcLoc { file: base.file.clone(), line, col }
 }
 
 /// Plugin element tags we understand (each becomes a nested `Props`).
-const PLUGIN_TAGS: &[&str] = &[
-    "bsdf",
-    "texture",
-    "emitter",
-    "rfilter",
-    "sampler",
-    "film",
-    "shape",
-    "sensor",
-    "integrator",
-];
+const PLUGIN_TAGS: &[&str] =
+    &["bsdf", "texture", "emitter", "rfilter", "sampler", "film", "shape", "sensor", "integrator"];
 
 /// Tags Mitsuba knows but this renderer deliberately does not support.
 const UNSUPPORTED_PLUGIN_TAGS: &[(&str, &str)] = &[
     ("medium", "participating media are not supported"),
-    (
-        "phase",
-        "phase functions (participating media) are not supported",
-    ),
-    (
-        "volume",
-        "volume data (participating media) are not supported",
-    ),
+    ("phase", "phase functions (participating media) are not supported"),
+    ("volume", "volume data (participating media) are not supported"),
     ("subsurface", "subsurface scattering is not supported"),
 ];
 
@@ -93,10 +61,7 @@ struct Attrs<'a> {
 
 impl Attrs<'_> {
     fn get(&self, name: &str) -> Option<&str> {
-        self.list
-            .iter()
-            .find(|(n, _)| *n == name)
-            .map(|(_, v)| v.as_str())
+        self.list.iter().find(|(n, _)| *n == name).map(|(_, v)| v.as_str())
     }
 }
 
@@ -116,21 +81,19 @@ impl<'d, 'i> XmlParser<'d, 'i> {
     fn parse_root(&mut self, root: Node<'d, 'i>) -> Result<Props, SceneError> {
         let tag = root.tag_name().name();
         if tag != "scene" {
-            return Err(self.err(
-                root,
-                format!("the root element must be <scene>, found <{tag}>"),
-            ));
+            return Err(self.err(root, format!("the root element must be <scene>, found <{tag}>")));
         }
         let attrs = self.attrs(root)?;
         check_attrs(self, root, &attrs, &["version"])?;
-        let version =
-            match attrs.get("version") {
-                Some(v) => v.to_string(),
-                None => return Err(self.err(
+        let version = match attrs.get("version") {
+            Some(v) => v.to_string(),
+            None => {
+                return Err(self.err(
                     root,
                     "missing 'version' attribute (Mitsuba requires e.g. <scene version=\"3.0.0\">)",
-                )),
-            };
+                ))
+            }
+        };
         parse_version(&version).ok_or_else(|| {
             self.err(
                 root,
@@ -178,10 +141,8 @@ impl<'d, 'i> XmlParser<'d, 'i> {
                     rest = &after[n.len()..];
                 }
                 None => {
-                    let ident: String = after
-                        .chars()
-                        .take_while(|c| c.is_ascii_alphanumeric() || *c == '_')
-                        .collect();
+                    let ident: String =
+                        after.chars().take_while(|c| c.is_ascii_alphanumeric() || *c == '_').collect();
                     let shown = if ident.is_empty() { "" } else { &ident };
                     return Err(self.err(
                         node,
@@ -215,10 +176,7 @@ impl<'d, 'i> XmlParser<'d, 'i> {
             return Err(SceneError::new(
                 self.loc_of(node),
                 None,
-                format!(
-                    "unexpected text \"{}\" (only elements are allowed here)",
-                    t.trim()
-                ),
+                format!("unexpected text \"{}\" (only elements are allowed here)", t.trim()),
             ));
         }
         if !node.is_element() {
@@ -318,15 +276,8 @@ impl<'d, 'i> XmlParser<'d, 'i> {
         }
     }
 
-    fn required<'a>(
-        &self,
-        node: Node,
-        attrs: &'a Attrs,
-        name: &str,
-    ) -> Result<&'a str, SceneError> {
-        attrs
-            .get(name)
-            .ok_or_else(|| self.err(node, format!("missing attribute '{name}'")))
+    fn required<'a>(&self, node: Node, attrs: &'a Attrs, name: &str) -> Result<&'a str, SceneError> {
+        attrs.get(name).ok_or_else(|| self.err(node, format!("missing attribute '{name}'")))
     }
 
     fn set_unique(
@@ -341,10 +292,7 @@ impl<'d, 'i> XmlParser<'d, 'i> {
             if let Some(prev) = parent.get(name) {
                 return Err(self.err(
                     node,
-                    format!(
-                        "parameter '{name}' is given twice (first at line {})",
-                        prev.loc.line
-                    ),
+                    format!("parameter '{name}' is given twice (first at line {})", prev.loc.line),
                 ));
             }
         }
@@ -352,18 +300,9 @@ impl<'d, 'i> XmlParser<'d, 'i> {
         Ok(())
     }
 
-    fn declare_id(
-        &mut self,
-        node: Node,
-        id: &str,
-        obj: Arc<Props>,
-        loc: SrcLoc,
-    ) -> Result<(), SceneError> {
+    fn declare_id(&mut self, node: Node, id: &str, obj: Arc<Props>, loc: SrcLoc) -> Result<(), SceneError> {
         if let Some((_, prev)) = self.ids.get(id) {
-            return Err(self.err(
-                node,
-                format!("duplicate id '{id}' (first declared at line {})", prev.line),
-            ));
+            return Err(self.err(node, format!("duplicate id '{id}' (first declared at line {})", prev.line)));
         }
         self.ids.insert(id.to_string(), (obj, loc));
         Ok(())
@@ -378,24 +317,19 @@ impl<'d, 'i> XmlParser<'d, 'i> {
     ) -> Result<(String, Arc<Props>), SceneError> {
         check_attrs(self, node, attrs, &["type", "id", "name"])?;
         let plugin_type = attrs.get("type").ok_or_else(|| {
-            self.err(
-                node,
-                format!("<{tag}> needs a 'type' attribute (e.g. <{tag} type=\"...\">)"),
-            )
+            self.err(node, format!("<{tag}> needs a 'type' attribute (e.g. <{tag} type=\"...\">)"))
         })?;
         if plugin_type.is_empty() {
             return Err(self.err(node, format!("<{tag}> has an empty 'type'")));
         }
-        let plugin_type =
-            upgrade_plugin_type(tag, plugin_type).map_err(|msg| self.err(node, msg))?;
+        let plugin_type = upgrade_plugin_type(tag, plugin_type).map_err(|msg| self.err(node, msg))?;
         let loc = self.loc_of(node);
         let mut props = Props::new(tag, &plugin_type, loc.clone());
         if let Some(id) = attrs.get("id") {
             if let Some((_, prev)) = self.ids.get(id) {
-                return Err(self.err(
-                    node,
-                    format!("duplicate id '{id}' (first declared at line {})", prev.line),
-                ));
+                return Err(
+                    self.err(node, format!("duplicate id '{id}' (first declared at line {})", prev.line))
+                );
             }
             props.id = Some(id.to_string());
         }
@@ -410,12 +344,7 @@ impl<'d, 'i> XmlParser<'d, 'i> {
         Ok((name, obj))
     }
 
-    fn parse_property(
-        &self,
-        node: Node<'d, 'i>,
-        tag: &str,
-        attrs: &Attrs,
-    ) -> Result<PropValue, SceneError> {
+    fn parse_property(&self, node: Node<'d, 'i>, tag: &str, attrs: &Attrs) -> Result<PropValue, SceneError> {
         match tag {
             "float" => {
                 check_attrs(self, node, attrs, &["name", "value"])?;
@@ -428,10 +357,7 @@ impl<'d, 'i> XmlParser<'d, 'i> {
                 no_children(self, node)?;
                 let v = self.required(node, attrs, "value")?;
                 let i = v.trim().parse::<i64>().map_err(|_| {
-                    self.err(
-                        node,
-                        format!("attribute 'value' must be an integer, got \"{v}\""),
-                    )
+                    self.err(node, format!("attribute 'value' must be an integer, got \"{v}\""))
                 })?;
                 Ok(PropValue::Int(i))
             }
@@ -442,18 +368,14 @@ impl<'d, 'i> XmlParser<'d, 'i> {
                 match v.trim().to_ascii_lowercase().as_str() {
                     "true" => Ok(PropValue::Bool(true)),
                     "false" => Ok(PropValue::Bool(false)),
-                    _ => Err(self.err(
-                        node,
-                        format!("attribute 'value' must be \"true\" or \"false\", got \"{v}\""),
-                    )),
+                    _ => Err(self
+                        .err(node, format!("attribute 'value' must be \"true\" or \"false\", got \"{v}\""))),
                 }
             }
             "string" => {
                 check_attrs(self, node, attrs, &["name", "value"])?;
                 no_children(self, node)?;
-                Ok(PropValue::String(
-                    self.required(node, attrs, "value")?.to_string(),
-                ))
+                Ok(PropValue::String(self.required(node, attrs, "value")?.to_string()))
             }
             "rgb" | "srgb" => {
                 check_attrs(self, node, attrs, &["name", "value", "intent"])?;
@@ -461,11 +383,7 @@ impl<'d, 'i> XmlParser<'d, 'i> {
                 let v = self.required(node, attrs, "value")?;
                 let (rgb, is_hex) = self.color(node, v)?;
                 // Mitsuba 0.6's <srgb> and hex colours are gamma-encoded sRGB; store linear.
-                let rgb = if tag == "srgb" || is_hex {
-                    rgb.map(srgb_to_linear)
-                } else {
-                    rgb
-                };
+                let rgb = if tag == "srgb" || is_hex { rgb.map(srgb_to_linear) } else { rgb };
                 Ok(PropValue::Rgb(rgb))
             }
             "spectrum" => {
@@ -491,20 +409,15 @@ impl<'d, 'i> XmlParser<'d, 'i> {
                     ))
                 }
             }
-            "blackbody" => Err(self.err(
-                node,
-                "<blackbody> is not supported in RGB rendering; convert it to <rgb>",
-            )),
+            "blackbody" => {
+                Err(self.err(node, "<blackbody> is not supported in RGB rendering; convert it to <rgb>"))
+            }
             "point" | "vector" => {
                 check_attrs(self, node, attrs, &["name", "value", "x", "y", "z"])?;
                 no_children(self, node)?;
                 let v = self.xyz(node, attrs, 0.0)?;
                 let v = v.as_vec3();
-                Ok(if tag == "point" {
-                    PropValue::Point(v)
-                } else {
-                    PropValue::Vector(v)
-                })
+                Ok(if tag == "point" { PropValue::Point(v) } else { PropValue::Vector(v) })
             }
             "transform" => {
                 check_attrs(self, node, attrs, &["name"])?;
@@ -522,11 +435,7 @@ impl<'d, 'i> XmlParser<'d, 'i> {
         }
     }
 
-    fn parse_transform_op(
-        &self,
-        node: Node<'d, 'i>,
-        acc: &mut TransformAcc,
-    ) -> Result<(), SceneError> {
+    fn parse_transform_op(&self, node: Node<'d, 'i>, acc: &mut TransformAcc) -> Result<(), SceneError> {
         if node.is_comment() || node.is_pi() {
             return Ok(());
         }
@@ -534,11 +443,7 @@ impl<'d, 'i> XmlParser<'d, 'i> {
             if node.text().unwrap_or("").trim().is_empty() {
                 return Ok(());
             }
-            return Err(SceneError::new(
-                self.loc_of(node),
-                None,
-                "unexpected text inside <transform>",
-            ));
+            return Err(SceneError::new(self.loc_of(node), None, "unexpected text inside <transform>"));
         }
         if !node.is_element() {
             return Ok(());
@@ -611,12 +516,8 @@ impl<'d, 'i> XmlParser<'d, 'i> {
     }
 
     fn number(&self, node: Node, attr: &str, text: &str) -> Result<f64, SceneError> {
-        parse_f64(text).ok_or_else(|| {
-            self.err(
-                node,
-                format!("attribute '{attr}' must be a number, got \"{text}\""),
-            )
-        })
+        parse_f64(text)
+            .ok_or_else(|| self.err(node, format!("attribute '{attr}' must be a number, got \"{text}\"")))
     }
 
     fn numbers(&self, node: Node, attr: &str, text: &str) -> Result<Vec<f64>, SceneError> {
@@ -643,10 +544,9 @@ impl<'d, 'i> XmlParser<'d, 'i> {
             return match vals.len() {
                 1 => Ok(DVec3::splat(vals[0])),
                 3 => Ok(DVec3::new(vals[0], vals[1], vals[2])),
-                n => Err(self.err(
-                    node,
-                    format!("attribute 'value' needs 1 or 3 numbers, got {n} in \"{v}\""),
-                )),
+                n => {
+                    Err(self.err(node, format!("attribute 'value' needs 1 or 3 numbers, got {n} in \"{v}\"")))
+                }
             };
         }
         let mut out = DVec3::splat(default);
@@ -662,13 +562,8 @@ impl<'d, 'i> XmlParser<'d, 'i> {
         let text = self.required(node, attrs, name)?;
         let vals = self.numbers(node, name, text)?;
         if vals.len() != 3 {
-            return Err(self.err(
-                node,
-                format!(
-                    "attribute '{name}' needs 3 numbers, got {} in \"{text}\"",
-                    vals.len()
-                ),
-            ));
+            return Err(self
+                .err(node, format!("attribute '{name}' needs 3 numbers, got {} in \"{text}\"", vals.len())));
         }
         Ok(DVec3::new(vals[0], vals[1], vals[2]))
     }
@@ -677,12 +572,7 @@ impl<'d, 'i> XmlParser<'d, 'i> {
     fn color(&self, node: Node, text: &str) -> Result<(Vec3, bool), SceneError> {
         let t = text.trim();
         if let Some(hex) = t.strip_prefix('#') {
-            let bad = || {
-                self.err(
-                    node,
-                    format!("invalid hex colour \"{text}\" (expected #rrggbb)"),
-                )
-            };
+            let bad = || self.err(node, format!("invalid hex colour \"{text}\" (expected #rrggbb)"));
             if hex.len() != 6 || !hex.is_ascii() {
                 return Err(bad());
             }
@@ -696,24 +586,13 @@ impl<'d, 'i> XmlParser<'d, 'i> {
         let vals = self.numbers(node, "value", text)?;
         match vals.len() {
             1 => Ok((Vec3::splat(vals[0] as f32), false)),
-            3 => Ok((
-                Vec3::new(vals[0] as f32, vals[1] as f32, vals[2] as f32),
-                false,
-            )),
-            n => Err(self.err(
-                node,
-                format!("a colour needs 1 or 3 values, got {n} in \"{text}\""),
-            )),
+            3 => Ok((Vec3::new(vals[0] as f32, vals[1] as f32, vals[2] as f32), false)),
+            n => Err(self.err(node, format!("a colour needs 1 or 3 values, got {n} in \"{text}\""))),
         }
     }
 }
 
-fn check_attrs(
-    p: &XmlParser,
-    node: Node,
-    attrs: &Attrs,
-    allowed: &[&str],
-) -> Result<(), SceneError> {
+fn check_attrs(p: &XmlParser, node: Node, attrs: &Attrs, allowed: &[&str]) -> Result<(), SceneError> {
     for (name, _) in &attrs.list {
         if !allowed.contains(name) {
             return Err(p.err(
@@ -732,14 +611,9 @@ fn check_attrs(
 fn no_children(p: &XmlParser, node: Node) -> Result<(), SceneError> {
     for c in node.children() {
         if c.is_element() {
-            return Err(p.err(
-                c,
-                format!(
-                    "<{}> cannot contain <{}>",
-                    node.tag_name().name(),
-                    c.tag_name().name()
-                ),
-            ));
+            return Err(
+                p.err(c, format!("<{}> cannot contain <{}>", node.tag_name().name(), c.tag_name().name()))
+            );
         }
         if c.is_text() && !c.text().unwrap_or("").trim().is_empty() {
             return Err(p.err(node, "unexpected text content"));
@@ -765,10 +639,7 @@ fn parse_version(v: &str) -> Option<(u32, u32, u32)> {
     if parts.len() != 3 {
         return None;
     }
-    let n: Vec<u32> = parts
-        .iter()
-        .map(|p| p.parse().ok())
-        .collect::<Option<_>>()?;
+    let n: Vec<u32> = parts.iter().map(|p| p.parse().ok()).collect::<Option<_>>()?;
     if !matches!(n[0], 0..=3) {
         return None;
     }
@@ -788,9 +659,7 @@ fn upgrade_plugin_type(tag: &str, t: &str) -> Result<String, String> {
 
 /// Splits on whitespace and commas, as Mitsuba's tokenizer does for lists of numbers.
 fn tokens(s: &str) -> Vec<&str> {
-    s.split(|c: char| c.is_whitespace() || c == ',')
-        .filter(|t| !t.is_empty())
-        .collect()
+    s.split(|c: char| c.is_whitespace() || c == ',').filter(|t| !t.is_empty()).collect()
 }
 
 fn parse_f64(s: &str) -> Option<f64> {
@@ -852,12 +721,7 @@ pub fn look_at(origin: DVec3, target: DVec3, up: Option<DVec3>) -> Option<DMat4>
     };
     let left = up.cross(dir).try_normalize()?;
     let new_up = dir.cross(left);
-    let m = DMat4::from_cols(
-        left.extend(0.0),
-        new_up.extend(0.0),
-        dir.extend(0.0),
-        origin.extend(1.0),
-    );
+    let m = DMat4::from_cols(left.extend(0.0), new_up.extend(0.0), dir.extend(0.0), origin.extend(1.0));
     m.is_finite().then_some(m)
 }
 

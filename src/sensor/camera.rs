@@ -17,16 +17,10 @@ pub struct PerspectiveCamera {
 
 impl PerspectiveCamera {
     /// Reads `<sensor type="perspective">`; `width`/`height` come from the film (they fix the aspect).
-    pub fn from_props(
-        props: &Props,
-        width: usize,
-        height: usize,
-    ) -> Result<PerspectiveCamera, SceneError> {
+    pub fn from_props(props: &Props, width: usize, height: usize) -> Result<PerspectiveCamera, SceneError> {
         if props.plugin_type != "perspective" {
-            return Err(props.error(format!(
-                "unsupported sensor type '{}' (supported: perspective)",
-                props.plugin_type
-            )));
+            return Err(props
+                .error(format!("unsupported sensor type '{}' (supported: perspective)", props.plugin_type)));
         }
         props.expect_only(
             &[
@@ -52,10 +46,9 @@ impl PerspectiveCamera {
             .float_opt("fov")?
             .ok_or_else(|| props.error("the perspective sensor needs a 'fov' (in degrees)"))?;
         if !(fov > 0.0 && fov < 180.0) {
-            return Err(props.error_at(
-                "fov",
-                format!("fov {fov} must lie strictly between 0 and 180 degrees"),
-            ));
+            return Err(
+                props.error_at("fov", format!("fov {fov} must lie strictly between 0 and 180 degrees"))
+            );
         }
         if props.float("principal_point_offset_x", 0.0)? != 0.0
             || props.float("principal_point_offset_y", 0.0)? != 0.0
@@ -99,17 +92,9 @@ impl PerspectiveCamera {
             return Err(props.error("near_clip must be >= 0 and below far_clip"));
         }
         let m = props.transform("to_world")?;
-        let to_world = Transform::new(m).ok_or_else(|| {
-            props.error_at("to_world", "the sensor's to_world matrix is singular")
-        })?;
-        Ok(PerspectiveCamera {
-            to_world,
-            tan_half,
-            near_clip,
-            far_clip,
-            width,
-            height,
-        })
+        let to_world = Transform::new(m)
+            .ok_or_else(|| props.error_at("to_world", "the sensor's to_world matrix is singular"))?;
+        Ok(PerspectiveCamera { to_world, tan_half, near_clip, far_clip, width, height })
     }
 
     /// Position of the pinhole in world space.
@@ -121,11 +106,7 @@ impl PerspectiveCamera {
     pub fn generate_ray(&self, film: Vec2) -> Ray {
         let sx = film.x / self.width as f32;
         let sy = film.y / self.height as f32;
-        let local = Vec3::new(
-            (1.0 - 2.0 * sx) * self.tan_half.x,
-            (1.0 - 2.0 * sy) * self.tan_half.y,
-            1.0,
-        );
+        let local = Vec3::new((1.0 - 2.0 * sx) * self.tan_half.x, (1.0 - 2.0 * sy) * self.tan_half.y, 1.0);
         // Clip distances are measured in camera space, as Mitsuba does, so a scaled to_world scales them.
         let world = self.to_world.vector(local);
         let len = world.length();
@@ -141,14 +122,8 @@ impl PerspectiveCamera {
         }
         let x = local.x / local.z / self.tan_half.x;
         let y = local.y / local.z / self.tan_half.y;
-        let film = Vec2::new(
-            (1.0 - x) * 0.5 * self.width as f32,
-            (1.0 - y) * 0.5 * self.height as f32,
-        );
-        (film.x >= 0.0
-            && film.y >= 0.0
-            && film.x < self.width as f32
-            && film.y < self.height as f32)
+        let film = Vec2::new((1.0 - x) * 0.5 * self.width as f32, (1.0 - y) * 0.5 * self.height as f32);
+        (film.x >= 0.0 && film.y >= 0.0 && film.x < self.width as f32 && film.y < self.height as f32)
             .then_some(film)
     }
 }

@@ -22,10 +22,9 @@ impl FilmSpec {
     /// Reads `<film type="hdrfilm">`; Mitsuba's defaults are 768 × 576 with a Gaussian filter.
     pub fn from_props(props: &Props) -> Result<FilmSpec, SceneError> {
         if props.plugin_type != "hdrfilm" {
-            return Err(props.error(format!(
-                "unsupported film type '{}' (supported: hdrfilm)",
-                props.plugin_type
-            )));
+            return Err(
+                props.error(format!("unsupported film type '{}' (supported: hdrfilm)", props.plugin_type))
+            );
         }
         props.expect_only(
             &[
@@ -48,20 +47,12 @@ impl FilmSpec {
             Some(f) => ReconstructionFilter::from_props(f)?,
             None => ReconstructionFilter::Gaussian { stddev: 0.5 },
         };
-        Ok(FilmSpec {
-            width: width as usize,
-            height: height as usize,
-            rfilter,
-        })
+        Ok(FilmSpec { width: width as usize, height: height as usize, rfilter })
     }
 }
 
 impl Default for FilmSpec {
     fn default() -> Self {
-        FilmSpec {
-            width: 768,
-            height: 576,
-            rfilter: ReconstructionFilter::Gaussian { stddev: 0.5 },
-        }
+        FilmSpec { width: 768, height: 576, rfilter: ReconstructionFilter::Gaussian { stddev: 0.5 } }
     }
 }

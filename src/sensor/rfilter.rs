@@ -96,8 +96,7 @@ fn erf(x: f64) -> f64 {
                         + t * (-0.186_288_06
                             + t * (0.278_868_07
                                 + t * (-1.135_203_98
-                                    + t * (1.488_515_87
-                                        + t * (-0.822_152_23 + t * 0.170_872_77)))))))))
+                                    + t * (1.488_515_87 + t * (-0.822_152_23 + t * 0.170_872_77)))))))))
             .exp();
     if x >= 0.0 {
         1.0 - ans
@@ -145,41 +144,29 @@ mod tests {
             let u = (i as f32 + 0.5) / n as f32;
             let x = filter.sample_1d(u);
             assert!(x.abs() <= r + 1e-5, "{x} outside radius {r}");
-            let b = (((x + r) / (2.0 * r)) * bins as f32)
-                .floor()
-                .clamp(0.0, bins as f32 - 1.0) as usize;
+            let b = (((x + r) / (2.0 * r)) * bins as f32).floor().clamp(0.0, bins as f32 - 1.0) as usize;
             hist[b] += 1;
         }
         let w = 2.0 * r / bins as f32;
-        let norm: f32 = (0..1000)
-            .map(|i| shape(-r + (i as f32 + 0.5) * 2.0 * r / 1000.0))
-            .sum::<f32>()
-            * 2.0
-            * r
-            / 1000.0;
+        let norm: f32 =
+            (0..1000).map(|i| shape(-r + (i as f32 + 0.5) * 2.0 * r / 1000.0)).sum::<f32>() * 2.0 * r
+                / 1000.0;
         for (b, &count) in hist.iter().enumerate() {
             let c = -r + (b as f32 + 0.5) * w;
             let expected = shape(c) / norm * w;
             let got = count as f32 / n as f32;
-            assert!(
-                (got - expected).abs() < 2e-3,
-                "bin {b}: got {got}, expected {expected}"
-            );
+            assert!((got - expected).abs() < 2e-3, "bin {b}: got {got}, expected {expected}");
         }
     }
 
     #[test]
     fn tent_samples_follow_the_triangle() {
-        check_shape(ReconstructionFilter::Tent { radius: 1.0 }, |x| {
-            (1.0 - x.abs()).max(0.0)
-        });
+        check_shape(ReconstructionFilter::Tent { radius: 1.0 }, |x| (1.0 - x.abs()).max(0.0));
     }
 
     #[test]
     fn gaussian_samples_follow_the_bell() {
-        check_shape(ReconstructionFilter::Gaussian { stddev: 0.5 }, |x| {
-            (-x * x / (2.0 * 0.25)).exp()
-        });
+        check_shape(ReconstructionFilter::Gaussian { stddev: 0.5 }, |x| (-x * x / (2.0 * 0.25)).exp());
     }
 
     #[test]

@@ -104,11 +104,7 @@ impl BitmapData {
         if self.channels == 1 {
             Vec3::splat(self.pixels[i])
         } else {
-            Vec3::new(
-                self.pixels[3 * i],
-                self.pixels[3 * i + 1],
-                self.pixels[3 * i + 2],
-            )
+            Vec3::new(self.pixels[3 * i], self.pixels[3 * i + 1], self.pixels[3 * i + 2])
         }
     }
 
@@ -169,10 +165,7 @@ impl BitmapTexture {
     }
 
     pub fn from_props(props: &Props, base_dir: &Path) -> Result<BitmapTexture, SceneError> {
-        props.expect_only(
-            &["filename", "filter_type", "wrap_mode", "raw", "to_uv"],
-            &[],
-        )?;
+        props.expect_only(&["filename", "filter_type", "wrap_mode", "raw", "to_uv"], &[])?;
         let filename = props
             .string_opt("filename")?
             .ok_or_else(|| props.error("a bitmap texture needs a 'filename'"))?;
@@ -295,8 +288,7 @@ mod tests {
 
     #[test]
     fn orientation_and_texel_centres() {
-        let t = BitmapTexture::from_image(&quad(), FilterType::Bilinear, WrapMode::Clamp, None)
-            .unwrap();
+        let t = BitmapTexture::from_image(&quad(), FilterType::Bilinear, WrapMode::Clamp, None).unwrap();
         // uv (0,0) is the first stored row, first column.
         assert_eq!(t.eval(Vec2::new(0.25, 0.25)), Vec3::new(1.0, 0.0, 0.0));
         assert_eq!(t.eval(Vec2::new(0.75, 0.25)), Vec3::new(0.0, 1.0, 0.0));
@@ -326,18 +318,15 @@ mod tests {
         assert_eq!(at(WrapMode::Mirror, 1.3), 2.0);
         assert_eq!(at(WrapMode::Clamp, 1.3), 3.0);
         // Bilinear repeat blends the last and first texels across the seam.
-        let t =
-            BitmapTexture::from_image(&img, FilterType::Bilinear, WrapMode::Repeat, None).unwrap();
+        let t = BitmapTexture::from_image(&img, FilterType::Bilinear, WrapMode::Repeat, None).unwrap();
         assert!((t.eval(Vec2::new(0.0, 0.5)).x - 1.5).abs() < 1e-6);
         assert_eq!(t.eval(Vec2::new(f32::NAN, 0.5)).x, t.eval(Vec2::ZERO).x);
     }
 
     #[test]
     fn to_uv_scales_and_translates() {
-        let m = Mat4::from_translation(Vec3::new(0.5, 0.0, 0.0))
-            * Mat4::from_scale(Vec3::new(0.5, 1.0, 1.0));
-        let t = BitmapTexture::from_image(&quad(), FilterType::Nearest, WrapMode::Repeat, Some(m))
-            .unwrap();
+        let m = Mat4::from_translation(Vec3::new(0.5, 0.0, 0.0)) * Mat4::from_scale(Vec3::new(0.5, 1.0, 1.0));
+        let t = BitmapTexture::from_image(&quad(), FilterType::Nearest, WrapMode::Repeat, Some(m)).unwrap();
         // u' = 0.5 u + 0.5: u = 0.1 → 0.55 → right column.
         assert_eq!(t.eval(Vec2::new(0.1, 0.1)), Vec3::new(0.0, 1.0, 0.0));
     }

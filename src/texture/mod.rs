@@ -102,10 +102,7 @@ impl Texture {
                 if o.tag != "texture" {
                     return Err(props.error_at(
                         name,
-                        format!(
-                            "parameter '{name}' is a <{}>, expected a colour or a <texture>",
-                            o.tag
-                        ),
+                        format!("parameter '{name}' is a <{}>, expected a colour or a <texture>", o.tag),
                     ));
                 }
                 Texture::from_props(o, base_dir)
@@ -118,9 +115,7 @@ impl Texture {
     pub fn from_props(props: &Props, base_dir: &Path) -> Result<Texture, SceneError> {
         match props.plugin_type.as_str() {
             "bitmap" => Ok(Texture::Bitmap(Arc::new(BitmapTexture::from_props(props, base_dir)?))),
-            "checkerboard" => Ok(Texture::Checkerboard(Arc::new(Checkerboard::from_props(
-                props, base_dir,
-            )?))),
+            "checkerboard" => Ok(Texture::Checkerboard(Arc::new(Checkerboard::from_props(props, base_dir)?))),
             // Mitsuba 3's constant-valued texture plugins.
             "uniform" => {
                 props.expect_only(&["value"], &[])?;
@@ -154,12 +149,7 @@ fn scene_dir(props: &Props) -> PathBuf {
     if props.loc.line == 0 && props.loc.file.to_string_lossy().starts_with('<') {
         return PathBuf::from(".");
     }
-    props
-        .loc
-        .file
-        .parent()
-        .map(Path::to_path_buf)
-        .unwrap_or_else(|| PathBuf::from("."))
+    props.loc.file.parent().map(Path::to_path_buf).unwrap_or_else(|| PathBuf::from("."))
 }
 
 /// Applies a Mitsuba `to_uv` transform (given as 4×4) to a uv pair: the 2×2 linear block plus the
@@ -182,16 +172,10 @@ mod tests {
     fn constants_and_nested() {
         let mut p = Props::new("bsdf", "diffuse", loc(1));
         assert_eq!(
-            Texture::from_param(&p, "reflectance", Vec3::splat(0.5))
-                .unwrap()
-                .eval(Vec2::ZERO),
+            Texture::from_param(&p, "reflectance", Vec3::splat(0.5)).unwrap().eval(Vec2::ZERO),
             Vec3::splat(0.5)
         );
-        p.set(
-            "reflectance",
-            PropValue::Rgb(Vec3::new(0.1, 0.2, 0.3)),
-            loc(2),
-        );
+        p.set("reflectance", PropValue::Rgb(Vec3::new(0.1, 0.2, 0.3)), loc(2));
         let t = Texture::from_param(&p, "reflectance", Vec3::splat(0.5)).unwrap();
         assert!(t.is_constant());
         assert_eq!(t.eval(Vec2::new(0.3, 0.9)), Vec3::new(0.1, 0.2, 0.3));
@@ -208,21 +192,14 @@ mod tests {
         let bad = Props::new("texture", "perlin", loc(7));
         p.set("reflectance", PropValue::Object(Arc::new(bad)), loc(7));
         let e = Texture::from_param(&p, "reflectance", Vec3::ONE).unwrap_err();
-        assert!(
-            e.to_string().contains("unsupported texture type 'perlin'"),
-            "{e}"
-        );
+        assert!(e.to_string().contains("unsupported texture type 'perlin'"), "{e}");
         assert_eq!(e.loc.line, 7);
     }
 
     #[test]
     fn missing_bitmap_file_is_a_located_error() {
         let mut b = Props::new("texture", "bitmap", loc(5));
-        b.set(
-            "filename",
-            PropValue::String("does_not_exist.png".into()),
-            loc(6),
-        );
+        b.set("filename", PropValue::String("does_not_exist.png".into()), loc(6));
         let e = Texture::from_props(&b, Path::new("/nonexistent")).unwrap_err();
         assert_eq!(e.loc.line, 5);
         assert!(e.to_string().contains("does_not_exist.png"), "{e}");

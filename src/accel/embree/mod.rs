@@ -37,10 +37,7 @@ impl EmbreeScene {
     /// non-finite vertices or out-of-range indices, and with Embree's own message on device errors.
     pub fn build(meshes: &[TriangleMesh]) -> anyhow::Result<EmbreeScene> {
         if meshes.len() >= ffi::RTC_INVALID_GEOMETRY_ID as usize {
-            bail!(
-                "Embree: {} meshes exceed the geometry id range",
-                meshes.len()
-            );
+            bail!("Embree: {} meshes exceed the geometry id range", meshes.len());
         }
         for (index, mesh) in meshes.iter().enumerate() {
             validate_mesh(index, mesh)?;
@@ -74,12 +71,7 @@ impl EmbreeScene {
         device.check("committing the scene (BVH build)")?;
 
         let packet_width = choose_packet_width(&device);
-        Ok(EmbreeScene {
-            scene,
-            device,
-            packet_width,
-            mesh_count: meshes.len(),
-        })
+        Ok(EmbreeScene { scene, device, packet_width, mesh_count: meshes.len() })
     }
 
     /// Rays per `rtcIntersectN` call used by the batch methods: 16, 8 or 4 by CPU and library
@@ -158,11 +150,7 @@ impl EmbreeScene {
     /// Occlusion for `rays`, in packets of [`Self::packet_width`]. Processes
     /// `min(rays.len(), occluded.len())` rays; the two lengths should be equal.
     pub fn occluded_batch(&self, rays: &[Ray], occluded: &mut [bool]) {
-        debug_assert_eq!(
-            rays.len(),
-            occluded.len(),
-            "occluded_batch: length mismatch"
-        );
+        debug_assert_eq!(rays.len(), occluded.len(), "occluded_batch: length mismatch");
         match self.packet_width {
             16 => self.occluded_packets16(rays, occluded),
             8 => self.occluded_packets8(rays, occluded),
@@ -210,25 +198,17 @@ macro_rules! packet_kernels {
                         // SAFETY: the scene is committed; `valid` is 64-byte aligned with at least
                         // $lanes entries, `packet` is aligned by its bindgen repr, inactive lanes are
                         // masked off, and every active lane holds a finite ray.
-                        unsafe {
-                            $rtc_intersect(
-                                valid.0.as_ptr(),
-                                self.scene.0,
-                                &mut context,
-                                &mut packet,
-                            )
-                        };
+                        unsafe { $rtc_intersect(valid.0.as_ptr(), self.scene.0, &mut context, &mut packet) };
                     }
                     for (lane, hit) in hit_chunk.iter_mut().enumerate() {
                         let geom_id = packet.hit.geomID[lane];
-                        *hit = (valid.0[lane] != 0 && geom_id != ffi::RTC_INVALID_GEOMETRY_ID)
-                            .then(|| Hit {
-                                t: packet.ray.tfar[lane],
-                                geom_id,
-                                prim_id: packet.hit.primID[lane],
-                                u: packet.hit.u[lane],
-                                v: packet.hit.v[lane],
-                            });
+                        *hit = (valid.0[lane] != 0 && geom_id != ffi::RTC_INVALID_GEOMETRY_ID).then(|| Hit {
+                            t: packet.ray.tfar[lane],
+                            geom_id,
+                            prim_id: packet.hit.primID[lane],
+                            u: packet.hit.u[lane],
+                            v: packet.hit.v[lane],
+                        });
                     }
                 }
             }
@@ -246,9 +226,7 @@ macro_rules! packet_kernels {
                     }
                     if valid.any() {
                         // SAFETY: as for the intersect kernel of the same width.
-                        unsafe {
-                            $rtc_occluded(valid.0.as_ptr(), self.scene.0, &mut context, &mut packet)
-                        };
+                        unsafe { $rtc_occluded(valid.0.as_ptr(), self.scene.0, &mut context, &mut packet) };
                     }
                     for (lane, out) in out_chunk.iter_mut().enumerate() {
                         *out = valid.0[lane] != 0 && packet.tfar[lane] == f32::NEG_INFINITY;
@@ -364,12 +342,7 @@ impl PreparedRay {
         if tnear >= tfar {
             return None;
         }
-        Some(PreparedRay {
-            origin: ray.origin,
-            dir: ray.dir,
-            tnear,
-            tfar,
-        })
+        Some(PreparedRay { origin: ray.origin, dir: ray.dir, tnear, tfar })
     }
 
     fn to_rtc_ray(self) -> ffi::RTCRay {
@@ -416,12 +389,7 @@ fn validate_mesh(index: usize, mesh: &TriangleMesh) -> anyhow::Result<()> {
             mesh.indices.len()
         );
     }
-    if let Some((v, p)) = mesh
-        .positions
-        .iter()
-        .enumerate()
-        .find(|(_, p)| !p.is_finite())
-    {
+    if let Some((v, p)) = mesh.positions.iter().enumerate().find(|(_, p)| !p.is_finite()) {
         bail!(
             "Embree: {} vertex {v} has a non-finite position ({}, {}, {}); expected finite coordinates",
             label(),
@@ -485,13 +453,11 @@ fn attach_mesh(
     // aligns buffers to at least 16 bytes, so the f32/u32 writes are aligned; the regions are fresh
     // allocations that cannot overlap our slices.
     unsafe {
-        let vertices =
-            std::slice::from_raw_parts_mut(vertex_ptr.cast::<f32>(), 3 * mesh.positions.len());
+        let vertices = std::slice::from_raw_parts_mut(vertex_ptr.cast::<f32>(), 3 * mesh.positions.len());
         for (dst, p) in vertices.chunks_exact_mut(3).zip(&mesh.positions) {
             dst.copy_from_slice(&p.to_array());
         }
-        let indices =
-            std::slice::from_raw_parts_mut(index_ptr.cast::<u32>(), 3 * mesh.indices.len());
+        let indices = std::slice::from_raw_parts_mut(index_ptr.cast::<u32>(), 3 * mesh.indices.len());
         for (dst, tri) in indices.chunks_exact_mut(3).zip(&mesh.indices) {
             dst.copy_from_slice(tri);
         }
@@ -517,10 +483,7 @@ struct ErrorSink {
 
 impl ErrorSink {
     fn push(&self, message: String) {
-        self.messages
-            .lock()
-            .unwrap_or_else(|poisoned| poisoned.into_inner())
-            .push(message);
+        self.messages.lock().unwrap_or_else(|poisoned| poisoned.into_inner()).push(message);
         self.any.store(true, Ordering::Release);
     }
 
@@ -528,20 +491,11 @@ impl ErrorSink {
         if !self.any.swap(false, Ordering::Acquire) {
             return Vec::new();
         }
-        std::mem::take(
-            &mut *self
-                .messages
-                .lock()
-                .unwrap_or_else(|poisoned| poisoned.into_inner()),
-        )
+        std::mem::take(&mut *self.messages.lock().unwrap_or_else(|poisoned| poisoned.into_inner()))
     }
 }
 
-unsafe extern "C" fn on_device_error(
-    user_ptr: *mut c_void,
-    code: ffi::RTCError,
-    message: *const c_char,
-) {
+unsafe extern "C" fn on_device_error(user_ptr: *mut c_void, code: ffi::RTCError, message: *const c_char) {
     if user_ptr.is_null() {
         return;
     }
@@ -551,9 +505,7 @@ unsafe extern "C" fn on_device_error(
         String::new()
     } else {
         // SAFETY: Embree passes a NUL-terminated string valid for the duration of the callback.
-        unsafe { CStr::from_ptr(message) }
-            .to_string_lossy()
-            .into_owned()
+        unsafe { CStr::from_ptr(message) }.to_string_lossy().into_owned()
     };
     sink.push(format!("{} ({text})", error_name(code)));
 }
@@ -593,9 +545,7 @@ impl Device {
             ffi::rtcSetDeviceErrorFunction(
                 raw,
                 Some(on_device_error),
-                ptr::from_ref::<ErrorSink>(&errors)
-                    .cast_mut()
-                    .cast::<c_void>(),
+                ptr::from_ref::<ErrorSink>(&errors).cast_mut().cast::<c_void>(),
             )
         };
         Ok(Device { raw, errors })
@@ -609,11 +559,7 @@ impl Device {
         if messages.is_empty() && code == ffi::RTC_ERROR_NONE {
             return Ok(());
         }
-        let detail = if messages.is_empty() {
-            error_name(code).to_string()
-        } else {
-            messages.join("; ")
-        };
+        let detail = if messages.is_empty() { error_name(code).to_string() } else { messages.join("; ") };
         Err(anyhow!("Embree error while {during}: {detail}"))
     }
 
@@ -666,10 +612,7 @@ fn choose_packet_width(device: &Device) -> usize {
 
 #[cfg(target_arch = "x86_64")]
 fn cpu_simd() -> (bool, bool) {
-    (
-        std::arch::is_x86_feature_detected!("avx512f"),
-        std::arch::is_x86_feature_detected!("avx"),
-    )
+    (std::arch::is_x86_feature_detected!("avx512f"), std::arch::is_x86_feature_detected!("avx"))
 }
 
 #[cfg(not(target_arch = "x86_64"))]
@@ -739,12 +682,7 @@ mod tests {
     use super::*;
 
     fn ray(origin: [f32; 3], dir: [f32; 3], tmin: f32, tmax: f32) -> Ray {
-        Ray {
-            origin: Vec3::from(origin),
-            dir: Vec3::from(dir),
-            tmin,
-            tmax,
-        }
+        Ray { origin: Vec3::from(origin), dir: Vec3::from(dir), tmin, tmax }
     }
 
     #[test]
@@ -761,10 +699,7 @@ mod tests {
             ray([0.0; 3], [0.0, 0.0, 1.0], 1.0, 1.0),
             ray([0.0; 3], [0.0, 0.0, 1.0], 0.0, 0.0),
         ] {
-            assert!(
-                PreparedRay::new(&bad).is_none(),
-                "{bad:?} should be rejected"
-            );
+            assert!(PreparedRay::new(&bad).is_none(), "{bad:?} should be rejected");
         }
     }
 
@@ -773,8 +708,7 @@ mod tests {
         let p = PreparedRay::new(&ray([0.0; 3], [1.0, 0.0, 0.0], -3.0, 2.0)).unwrap();
         assert_eq!(p.tnear, 0.0);
         assert_eq!(p.tfar, 2.0);
-        let unbounded =
-            PreparedRay::new(&ray([0.0; 3], [1.0, 0.0, 0.0], 0.5, f32::INFINITY)).unwrap();
+        let unbounded = PreparedRay::new(&ray([0.0; 3], [1.0, 0.0, 0.0], 0.5, f32::INFINITY)).unwrap();
         assert_eq!(unbounded.tfar, f32::INFINITY);
         assert_eq!(unbounded.tnear, 0.5);
     }
@@ -797,10 +731,7 @@ mod tests {
         assert!(geometry.is_null());
         // Embree's own text must reach the message, not just the code.
         assert!(err.contains("invalid geometry type"), "{err}");
-        assert!(
-            device.check("again").is_ok(),
-            "errors must be cleared once reported"
-        );
+        assert!(device.check("again").is_ok(), "errors must be cleared once reported");
     }
 
     #[test]
@@ -821,9 +752,7 @@ mod tests {
         .join()
         .unwrap();
         if cfg!(target_arch = "x86_64") {
-            std::thread::spawn(|| assert!(!flush_denormals_enabled()))
-                .join()
-                .unwrap();
+            std::thread::spawn(|| assert!(!flush_denormals_enabled())).join().unwrap();
         }
     }
 }

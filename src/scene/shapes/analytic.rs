@@ -22,12 +22,7 @@ pub(super) fn rectangle() -> RawMesh {
     RawMesh {
         positions: corners.iter().map(|&(x, y)| Vec3::new(x, y, 0.0)).collect(),
         normals: Some(vec![Vec3::Z; 4]),
-        uvs: Some(
-            corners
-                .iter()
-                .map(|&(x, y)| Vec2::new((x + 1.0) * 0.5, (y + 1.0) * 0.5))
-                .collect(),
-        ),
+        uvs: Some(corners.iter().map(|&(x, y)| Vec2::new((x + 1.0) * 0.5, (y + 1.0) * 0.5)).collect()),
         indices: vec![[0, 1, 2], [0, 2, 3]],
     }
 }
@@ -35,11 +30,7 @@ pub(super) fn rectangle() -> RawMesh {
 /// [-1, 1]³ with 4 vertices per face (so normals stay per face), outward normals, and every face
 /// mapped onto [0, 1]² in uv as Mitsuba's cube does.
 pub(super) fn cube() -> RawMesh {
-    let mut m = RawMesh {
-        normals: Some(Vec::new()),
-        uvs: Some(Vec::new()),
-        ..Default::default()
-    };
+    let mut m = RawMesh { normals: Some(Vec::new()), uvs: Some(Vec::new()), ..Default::default() };
     let axes = [Vec3::X, Vec3::Y, Vec3::Z];
     for k in 0..3 {
         for sign in [1.0f32, -1.0] {
@@ -54,10 +45,7 @@ pub(super) fn cube() -> RawMesh {
             for (a, b) in [(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)] {
                 m.positions.push(n + u * a + v * b);
                 m.normals.as_mut().unwrap().push(n);
-                m.uvs
-                    .as_mut()
-                    .unwrap()
-                    .push(Vec2::new((a + 1.0) * 0.5, (b + 1.0) * 0.5));
+                m.uvs.as_mut().unwrap().push(Vec2::new((a + 1.0) * 0.5, (b + 1.0) * 0.5));
             }
             m.indices.push([base, base + 1, base + 2]);
             m.indices.push([base, base + 2, base + 3]);
@@ -70,11 +58,7 @@ pub(super) fn cube() -> RawMesh {
 /// fan triangle interpolates φ without wrapping.
 pub(super) fn disk() -> RawMesh {
     let n = DISK_SEGMENTS;
-    let mut m = RawMesh {
-        normals: Some(Vec::new()),
-        uvs: Some(Vec::new()),
-        ..Default::default()
-    };
+    let mut m = RawMesh { normals: Some(Vec::new()), uvs: Some(Vec::new()), ..Default::default() };
     for j in 0..=n {
         let t = j as f32 / n as f32;
         let phi = 2.0 * PI * t;
@@ -84,10 +68,7 @@ pub(super) fn disk() -> RawMesh {
     let centre0 = m.positions.len() as u32;
     for j in 0..n {
         m.positions.push(Vec3::ZERO);
-        m.uvs
-            .as_mut()
-            .unwrap()
-            .push(Vec2::new(0.0, (j as f32 + 0.5) / n as f32));
+        m.uvs.as_mut().unwrap().push(Vec2::new(0.0, (j as f32 + 0.5) / n as f32));
         m.indices.push([centre0 + j, j, j + 1]);
     }
     m.normals = Some(vec![Vec3::Z; m.positions.len()]);
@@ -109,11 +90,7 @@ pub(super) fn sphere() -> RawMesh {
         for j in 0..=np {
             let u = j as f32 / np as f32;
             let phi = 2.0 * PI * u;
-            pos.push(Vec3::new(
-                theta.sin() * phi.cos(),
-                theta.sin() * phi.sin(),
-                theta.cos(),
-            ));
+            pos.push(Vec3::new(theta.sin() * phi.cos(), theta.sin() * phi.sin(), theta.cos()));
             uv.push(Vec2::new(u, v));
         }
     }
@@ -138,12 +115,7 @@ pub(super) fn sphere() -> RawMesh {
         }
         idx.push([ring(nt - 1, j), south0 + j, ring(nt - 1, j + 1)]);
     }
-    RawMesh {
-        normals: Some(pos.clone()),
-        positions: pos,
-        uvs: Some(uv),
-        indices: idx,
-    }
+    RawMesh { normals: Some(pos.clone()), positions: pos, uvs: Some(uv), indices: idx }
 }
 
 #[cfg(test)]

@@ -29,20 +29,13 @@ pub fn load_shape(props: &Props, base_dir: &Path) -> Result<LoadedShape, SceneEr
     let (raw, source, smooth_if_missing) = match props.plugin_type.as_str() {
         "obj" | "ply" => {
             let is_obj = props.plugin_type == "obj";
-            props.expect_only(
-                &known(&["filename", "face_normals", "flip_tex_coords"]),
-                &NESTED,
-            )?;
+            props.expect_only(&known(&["filename", "face_normals", "flip_tex_coords"]), &NESTED)?;
             let path = mesh_path(props, base_dir)?;
             let face_normals = props.bool("face_normals", false)?;
             // Mitsuba 3 flips v for OBJ by default (obj.cpp: `flip_tex_coords` defaults to true,
             // "for consistency with the Mitsuba 1 behavior"), but not for PLY (ply.cpp: false).
             let flip_tex_coords = props.bool("flip_tex_coords", is_obj)?;
-            let raw = if is_obj {
-                obj::load(&path, props)?
-            } else {
-                ply::load(&path, props)?
-            };
+            let raw = if is_obj { obj::load(&path, props)? } else { ply::load(&path, props)? };
             let mut raw = raw;
             if face_normals {
                 raw.normals = None;
@@ -74,17 +67,14 @@ pub fn load_shape(props: &Props, base_dir: &Path) -> Result<LoadedShape, SceneEr
             props.expect_only(&known(&["center", "radius"]), &NESTED)?;
             let radius = props.float("radius", 1.0)?;
             if !(radius.is_finite() && radius > 0.0) {
-                return Err(props.error_at(
-                    "radius",
-                    format!("sphere radius must be positive, got {radius}"),
-                ));
+                return Err(props.error_at("radius", format!("sphere radius must be positive, got {radius}")));
             }
             (analytic::sphere(), "sphere".to_string(), false)
         }
         other => {
             return Err(props.error(format!(
-            "unsupported shape type '{other}' (supported: obj, ply, rectangle, cube, disk, sphere)"
-        )))
+                "unsupported shape type '{other}' (supported: obj, ply, rectangle, cube, disk, sphere)"
+            )))
         }
     };
 
@@ -92,44 +82,27 @@ pub fn load_shape(props: &Props, base_dir: &Path) -> Result<LoadedShape, SceneEr
     if props.plugin_type == "sphere" {
         let center = props.point_opt("center")?.unwrap_or(Vec3::ZERO);
         let radius = props.float("radius", 1.0)?;
-        to_world = to_world
-            * glam::Mat4::from_translation(center)
-            * glam::Mat4::from_scale(Vec3::splat(radius));
+        to_world =
+            to_world * glam::Mat4::from_translation(center) * glam::Mat4::from_scale(Vec3::splat(radius));
     }
     let transform = Transform::new(to_world)
         .ok_or_else(|| props.error_at("to_world", "to_world is singular or not finite"))?;
     let flip_normals = props.bool("flip_normals", false)?;
-    let name = props
-        .id
-        .clone()
-        .unwrap_or_else(|| match props.plugin_type.as_str() {
-            "obj" | "ply" => Path::new(&source)
-                .file_name()
-                .map(|f| f.to_string_lossy().into_owned())
-                .unwrap_or_else(|| source.clone()),
-            t => t.to_string(),
-        });
-    finalize(
-        raw,
-        &transform,
-        flip_normals,
-        smooth_if_missing,
-        name,
-        &source,
-        props,
-    )
+    let name = props.id.clone().unwrap_or_else(|| match props.plugin_type.as_str() {
+        "obj" | "ply" => Path::new(&source)
+            .file_name()
+            .map(|f| f.to_string_lossy().into_owned())
+            .unwrap_or_else(|| source.clone()),
+        t => t.to_string(),
+    });
+    finalize(raw, &transform, flip_normals, smooth_if_missing, name, &source, props)
 }
 
 fn mesh_path(props: &Props, base_dir: &Path) -> Result<PathBuf, SceneError> {
-    let filename = props
-        .string_opt("filename")?
-        .ok_or_else(|| props.error("missing parameter 'filename'"))?;
+    let filename =
+        props.string_opt("filename")?.ok_or_else(|| props.error("missing parameter 'filename'"))?;
     let p = Path::new(&filename);
-    let path = if p.is_absolute() {
-        p.to_path_buf()
-    } else {
-        base_dir.join(p)
-    };
+    let path = if p.is_absolute() { p.to_path_buf() } else { base_dir.join(p) };
     if !path.is_file() {
         return Err(props.error(format!("mesh file '{}' not found", path.display())));
     }
@@ -156,18 +129,10 @@ fn finalize(
     source: &str,
     props: &Props,
 ) -> Result<LoadedShape, SceneError> {
-    let RawMesh {
-        positions,
-        normals,
-        uvs,
-        indices,
-    } = raw;
+    let RawMesh { positions, normals, uvs, indices } = raw;
     let n = positions.len();
     if let Some(i) = positions.iter().position(|p| !p.is_finite()) {
-        return Err(props.error(format!(
-            "{source}: vertex {i} has a non-finite position {:?}",
-            positions[i]
-        )));
+        return Err(props.error(format!("{source}: vertex {i} has a non-finite position {:?}", positions[i])));
     }
     if let Some(ns) = &normals {
         if ns.len() != n {
@@ -176,17 +141,10 @@ fn finalize(
     }
     if let Some(uv) = &uvs {
         if uv.len() != n {
-            return Err(props.error(format!(
-                "{source}: {} texture coordinates for {n} vertices",
-                uv.len()
-            )));
+            return Err(props.error(format!("{source}: {} texture coordinates for {n} vertices", uv.len())));
         }
     }
-    if let Some((t, tri)) = indices
-        .iter()
-        .enumerate()
-        .find(|(_, tri)| tri.iter().any(|&i| i as usize >= n))
-    {
+    if let Some((t, tri)) = indices.iter().enumerate().find(|(_, tri)| tri.iter().any(|&i| i as usize >= n)) {
         return Err(props.error(format!(
             "{source}: triangle {t} refers to vertex {:?} but the mesh has only {n} vertices",
             tri
@@ -197,11 +155,8 @@ fn finalize(
     if let Some(i) = world_pos.iter().position(|p| !p.is_finite()) {
         return Err(props.error(format!("{source}: vertex {i} is not finite after to_world")));
     }
-    let mut world_normals: Option<Vec<Vec3>> = normals.map(|ns| {
-        ns.iter()
-            .map(|&v| transform.normal(v).normalize_or_zero())
-            .collect()
-    });
+    let mut world_normals: Option<Vec<Vec3>> =
+        normals.map(|ns| ns.iter().map(|&v| transform.normal(v).normalize_or_zero()).collect());
 
     let mut warnings = Vec::new();
     // A handedness-flipping transform reverses the winding; restore it so the geometric normal
@@ -212,11 +167,7 @@ fn finalize(
     let mut rewound = 0usize;
     for &[a, b, c] in &indices {
         let (a, b, c) = if mirror { (a, c, b) } else { (a, b, c) };
-        let (pa, pb, pc) = (
-            world_pos[a as usize],
-            world_pos[b as usize],
-            world_pos[c as usize],
-        );
+        let (pa, pb, pc) = (world_pos[a as usize], world_pos[b as usize], world_pos[c as usize]);
         let cross = (pb - pa).cross(pc - pa);
         let len = cross.length();
         let scale = (pb - pa).length_squared().max((pc - pa).length_squared());
@@ -235,9 +186,7 @@ fn finalize(
         tris.push(tri);
     }
     if degenerate > 0 {
-        warnings.push(format!(
-            "skipped {degenerate} degenerate triangles in {source}"
-        ));
+        warnings.push(format!("skipped {degenerate} degenerate triangles in {source}"));
     }
     if rewound > 0 {
         warnings.push(format!(
@@ -290,13 +239,7 @@ fn finalize(
     }
 
     Ok(LoadedShape {
-        mesh: TriangleMesh {
-            name,
-            positions: world_pos,
-            normals: world_normals,
-            uvs,
-            indices: tris,
-        },
+        mesh: TriangleMesh { name, positions: world_pos, normals: world_normals, uvs, indices: tris },
         warnings,
     })
 }
@@ -358,12 +301,7 @@ mod tests {
         p.set("flip_normals", PropValue::Bool(true), SrcLoc::builtin());
         let s = load_shape(&p, Path::new(".")).unwrap();
         assert!((s.mesh.geometric_normal(0) + Vec3::Z).length() < 1e-6);
-        assert!(s
-            .mesh
-            .normals
-            .unwrap()
-            .iter()
-            .all(|n| (*n + Vec3::Z).length() < 1e-6));
+        assert!(s.mesh.normals.unwrap().iter().all(|n| (*n + Vec3::Z).length() < 1e-6));
     }
 
     #[test]
@@ -373,10 +311,7 @@ mod tests {
         let e = load_shape(&p, Path::new(".")).unwrap_err();
         assert!(e.message.contains("unknown parameter 'radius'"), "{e}");
         let e = load_shape(&props("serialized"), Path::new(".")).unwrap_err();
-        assert!(
-            e.message.contains("unsupported shape type 'serialized'"),
-            "{e}"
-        );
+        assert!(e.message.contains("unsupported shape type 'serialized'"), "{e}");
     }
 
     #[test]

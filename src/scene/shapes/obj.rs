@@ -13,44 +13,33 @@ pub(super) fn load(path: &Path, props: &Props) -> Result<RawMesh, SceneError> {
     let text = String::from_utf8_lossy(&bytes);
     check_vertex_lines(&text, path, props)?;
 
-    let options = tobj::LoadOptions {
-        triangulate: true,
-        single_index: false,
-        ignore_points: true,
-        ignore_lines: true,
-    };
+    let options =
+        tobj::LoadOptions { triangulate: true, single_index: false, ignore_points: true, ignore_lines: true };
     // Materials are irrelevant here (BSDFs come from the scene), so `mtllib` is never opened.
-    let (models, _materials) = tobj::load_obj_buf(&mut text.as_bytes(), &options, |_| {
-        Err(tobj::LoadError::GenericFailure)
-    })
-    .map_err(|e| props.error(format!("cannot parse OBJ file '{}': {e}", path.display())))?;
+    let (models, _materials) =
+        tobj::load_obj_buf(&mut text.as_bytes(), &options, |_| Err(tobj::LoadError::GenericFailure))
+            .map_err(|e| props.error(format!("cannot parse OBJ file '{}': {e}", path.display())))?;
 
-    let all_uv = models.iter().all(|m| {
-        !m.mesh.texcoords.is_empty() && m.mesh.texcoord_indices.len() == m.mesh.indices.len()
-    });
+    let all_uv = models
+        .iter()
+        .all(|m| !m.mesh.texcoords.is_empty() && m.mesh.texcoord_indices.len() == m.mesh.indices.len());
     let all_n = models
         .iter()
         .all(|m| !m.mesh.normals.is_empty() && m.mesh.normal_indices.len() == m.mesh.indices.len());
 
-    let mut out = RawMesh {
-        normals: all_n.then(Vec::new),
-        uvs: all_uv.then(Vec::new),
-        ..Default::default()
-    };
+    let mut out = RawMesh { normals: all_n.then(Vec::new), uvs: all_uv.then(Vec::new), ..Default::default() };
     for model in &models {
         let mesh = &model.mesh;
         let mut corner_to_vertex: HashMap<(u32, u32, u32), u32> = HashMap::new();
         let fetch3 = |data: &[f32], i: u32, what: &str| -> Result<Vec3, SceneError> {
             let k = i as usize * 3;
-            data.get(k..k + 3)
-                .map(|s| Vec3::new(s[0], s[1], s[2]))
-                .ok_or_else(|| {
-                    props.error(format!(
-                        "OBJ file '{}': face refers to {what} {} which does not exist",
-                        path.display(),
-                        i + 1
-                    ))
-                })
+            data.get(k..k + 3).map(|s| Vec3::new(s[0], s[1], s[2])).ok_or_else(|| {
+                props.error(format!(
+                    "OBJ file '{}': face refers to {what} {} which does not exist",
+                    path.display(),
+                    i + 1
+                ))
+            })
         };
         let mut corners = Vec::with_capacity(mesh.indices.len());
         for (c, &vi) in mesh.indices.iter().enumerate() {
@@ -89,8 +78,7 @@ pub(super) fn load(path: &Path, props: &Props) -> Result<RawMesh, SceneError> {
                 model.name
             )));
         }
-        out.indices
-            .extend(corners.chunks_exact(3).map(|t| [t[0], t[1], t[2]]));
+        out.indices.extend(corners.chunks_exact(3).map(|t| [t[0], t[1], t[2]]));
     }
     if out.indices.is_empty() {
         return Err(props.error(format!("OBJ file '{}' contains no faces", path.display())));

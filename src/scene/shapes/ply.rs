@@ -31,9 +31,7 @@ impl Vertex {
             "nz" => &mut self.n[2],
             _ => {
                 let Some((k, c)) = UV_NAMES.iter().enumerate().find_map(|(k, (u, v))| {
-                    (name == *u)
-                        .then_some((k, 0))
-                        .or((name == *v).then_some((k, 1)))
+                    (name == *u).then_some((k, 0)).or((name == *v).then_some((k, 1)))
                 }) else {
                     return PropertyAccessResult::Ignored;
                 };
@@ -128,14 +126,10 @@ pub(super) fn load(path: &Path, props: &Props) -> Result<RawMesh, SceneError> {
     let fail = |msg: String| props.error(format!("PLY file '{}': {msg}", path.display()));
     let file = std::fs::File::open(path).map_err(|e| fail(format!("cannot open: {e}")))?;
     let mut reader = Reader::new(BufReader::new(file));
-    let header = Parser::<Skip>::new()
-        .read_header(&mut reader)
-        .map_err(|e| fail(format!("invalid header: {e}")))?;
+    let header =
+        Parser::<Skip>::new().read_header(&mut reader).map_err(|e| fail(format!("invalid header: {e}")))?;
 
-    let vertex_def = header
-        .elements
-        .get("vertex")
-        .ok_or_else(|| fail("no 'vertex' element".into()))?;
+    let vertex_def = header.elements.get("vertex").ok_or_else(|| fail("no 'vertex' element".into()))?;
     let has = |name: &str| vertex_def.properties.contains_key(name);
     for axis in ["x", "y", "z"] {
         if !has(axis) {
@@ -144,16 +138,11 @@ pub(super) fn load(path: &Path, props: &Props) -> Result<RawMesh, SceneError> {
     }
     let has_normals = has("nx") && has("ny") && has("nz");
     let uv_pair = UV_NAMES.iter().position(|(u, v)| has(u) && has(v));
-    let face_def = header
-        .elements
-        .get("face")
-        .ok_or_else(|| fail("no 'face' element".into()))?;
+    let face_def = header.elements.get("face").ok_or_else(|| fail("no 'face' element".into()))?;
     if !face_def.properties.contains_key("vertex_indices")
         && !face_def.properties.contains_key("vertex_index")
     {
-        return Err(fail(
-            "face element has no 'vertex_indices' (or 'vertex_index') list".into(),
-        ));
+        return Err(fail("face element has no 'vertex_indices' (or 'vertex_index') list".into()));
     }
 
     let mut out = RawMesh {
@@ -168,8 +157,7 @@ pub(super) fn load(path: &Path, props: &Props) -> Result<RawMesh, SceneError> {
             "vertex" => {
                 let pair = uv_pair.unwrap_or(0);
                 read_elements::<Vertex, _>(input, encoding, def, path, props, |_, v| {
-                    out.positions
-                        .push(Vec3::new(v.p[0] as f32, v.p[1] as f32, v.p[2] as f32));
+                    out.positions.push(Vec3::new(v.p[0] as f32, v.p[1] as f32, v.p[2] as f32));
                     if let Some(ns) = &mut out.normals {
                         ns.push(Vec3::new(v.n[0] as f32, v.n[1] as f32, v.n[2] as f32));
                     }
@@ -183,16 +171,9 @@ pub(super) fn load(path: &Path, props: &Props) -> Result<RawMesh, SceneError> {
                 let n_vertices = vertex_def.count;
                 read_elements::<Face, _>(input, encoding, def, path, props, |i, f| {
                     if f.indices.len() < 3 {
-                        return Err(format!(
-                            "face {i} has {} vertices (at least 3 needed)",
-                            f.indices.len()
-                        ));
+                        return Err(format!("face {i} has {} vertices (at least 3 needed)", f.indices.len()));
                     }
-                    if let Some(&bad) = f
-                        .indices
-                        .iter()
-                        .find(|&&k| k < 0 || k as usize >= n_vertices)
-                    {
+                    if let Some(&bad) = f.indices.iter().find(|&&k| k < 0 || k as usize >= n_vertices) {
                         return Err(format!(
                             "face {i} refers to vertex {bad}, but the file declares {n_vertices} vertices"
                         ));
@@ -233,9 +214,7 @@ fn read_elements<E: PropertyAccess, R: BufRead>(
         let element = match encoding {
             Encoding::Ascii => loop {
                 line.clear();
-                let n = input
-                    .read_line(&mut line)
-                    .map_err(|e| fail(format!("read error: {e}")))?;
+                let n = input.read_line(&mut line).map_err(|e| fail(format!("read error: {e}")))?;
                 if n == 0 {
                     return Err(truncated(i));
                 }
