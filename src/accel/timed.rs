@@ -8,20 +8,59 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::Instant;
 
+/// Time and call count accumulated by a `TimedQuery`, shared with whoever reads the result.
+#[derive(Debug, Default)]
+pub struct QueryClock {
+    nanos: AtomicU64,
+    calls: AtomicU64,
+}
+
+impl QueryClock {
+    /// Seconds inside the backend, less the measured cost of the clock reads themselves.
+    pub fn corrected_seconds(&self) -> f64 {
+        let raw = self.nanos.load(Ordering::Relaxed) as f64 * 1e-9;
+        let calls = self.calls.load(Ordering::Relaxed) as f64;
+        (raw - calls * clock_overhead_seconds()).max(0.0)
+    }
+
+    pub fn calls(&self) -> u64 {
+        self.calls.load(Ordering::Relaxed)
+    }
+}
+
+/// What one timed interval around an empty call measures (the clock's own cost), median of 5 runs.
+pub fn clock_overhead_seconds() -> f64 {
+    let mut runs: Vec<f64> = (0..5)
+        .map(|_| {
+            let n = 200_000;
+            let mut total = 0u128;
+            for _ in 0..n {
+                let t = Instant::now();
+                std::hint::black_box(());
+                total += t.elapsed().as_nanos();
+            }
+            total as f64 * 1e-9 / n as f64
+        })
+        .collect();
+    runs.sort_by(f64::total_cmp);
+    runs[2]
+}
+
 pub struct TimedQuery {
     inner: Box<dyn RayQuery>,
-    nanos: Arc<AtomicU64>,
+    clock: Arc<QueryClock>,
 }
 
 impl TimedQuery {
-    pub fn new(inner: Box<dyn RayQuery>, nanos: Arc<AtomicU64>) -> TimedQuery {
-        TimedQuery { inner, nanos }
+    pub fn new(inner: Box<dyn RayQuery>, clock: Arc<QueryClock>) -> TimedQuery {
+        TimedQuery { inner, clock }
     }
 
     fn timed<T>(&self, f: impl FnOnce() -> T) -> T {
         let t = Instant::now();
         let r = f();
-        self.nanos.fetch_add(t.elapsed().as_nanos() as u64, Ordering::Relaxed);
+        self.clock.nanos.fetch_add(t.elapsed().as_nanos() as u64, Ordering::Relaxed);
+        self.clock.calls.fetch_add(1, Ordering::Relaxed);
         r
     }
 }
