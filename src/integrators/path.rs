@@ -26,6 +26,17 @@ impl PathTracer {
         self.limits.max_depth < 0 || segments <= self.limits.max_depth
     }
 
+    /// MIS weight of emission reached by BSDF sampling from `prev`; `light_pdf` gives the density with
+    /// which light sampling at `prev` would have produced the same point.
+    fn emission_weight(&self, prev: &Option<PrevVertex>, light_pdf: impl FnOnce(&PrevVertex) -> f32) -> f32 {
+        match prev {
+            None if self.hide_emitters => 0.0,
+            None => 1.0,
+            Some(pv) if pv.delta => 1.0,
+            Some(pv) => power_heuristic(pv.bsdf_pdf, light_pdf(pv)),
+        }
+    }
+
     /// Light sampling at a surface point; returns the MIS-weighted contribution (without throughput).
     fn direct_light(
         &self,
@@ -94,20 +105,9 @@ impl PixelIntegrator for PathTracer {
                 for &li in &scene.infinite_lights {
                     let light = &scene.lights[li];
                     let le = light.eval_infinite(ray.dir);
-                    let weight = match &prev {
-                        None => {
-                            if self.hide_emitters {
-                                0.0
-                            } else {
-                                1.0
-                            }
-                        }
-                        Some(pv) if pv.delta => 1.0,
-                        Some(pv) => power_heuristic(
-                            pv.bsdf_pdf,
-                            scene.light_selector.pmf(li) * light.pdf_infinite(ray.dir),
-                        ),
-                    };
+                    let weight = self.emission_weight(&prev, |_| {
+                        scene.light_selector.pmf(li) * light.pdf_infinite(ray.dir)
+                    });
                     radiance += throughput * le * weight;
                 }
                 break;
@@ -117,20 +117,9 @@ impl PixelIntegrator for PathTracer {
                 let sp = area.surface_point(&si);
                 let le = area.emitted(&sp, si.wi);
                 if le != Spectrum::ZERO {
-                    let weight = match &prev {
-                        None => {
-                            if self.hide_emitters {
-                                0.0
-                            } else {
-                                1.0
-                            }
-                        }
-                        Some(pv) if pv.delta => 1.0,
-                        Some(pv) => {
-                            let light_pdf = scene.light_selector.pmf(li) * area.pdf_li(pv.p, si.p, si.ng);
-                            power_heuristic(pv.bsdf_pdf, light_pdf)
-                        }
-                    };
+                    let weight = self.emission_weight(&prev, |pv| {
+                        scene.light_selector.pmf(li) * area.pdf_li(pv.p, si.p, si.ng)
+                    });
                     radiance += throughput * le * weight;
                 }
             }
