@@ -135,6 +135,23 @@ pub struct BsdfLoader<'a> {
     pub base_dir: &'a Path,
 }
 
+/// Veach's correction for shading normals in importance transport (Veach 1997, §5.3): with a shading
+/// normal `ns` that differs from the geometric `ng`, the adjoint BSDF seen by paths that start at a
+/// light is f(wi, wo) · |wi·ns| |wo·ng| / (|wi·ng| |wo·ns|). Radiance transport needs no factor.
+/// Directions are world-space and follow this module's convention (`wi` towards the previous vertex).
+/// Returns 0 where a direction grazes the geometric surface, rather than an infinite weight.
+pub fn shading_normal_correction(mode: TransportMode, wi: Vec3, wo: Vec3, ng: Vec3, ns: Vec3) -> f32 {
+    if mode == TransportMode::Radiance {
+        return 1.0;
+    }
+    let num = wi.dot(ns).abs() * wo.dot(ng).abs();
+    let den = wi.dot(ng).abs() * wo.dot(ns).abs();
+    if den <= 1e-12 || !num.is_finite() {
+        return 0.0;
+    }
+    num / den
+}
+
 /// Builds a BSDF from its `<bsdf>` element.
 pub fn from_props(props: &Props, loader: &BsdfLoader) -> Result<Arc<dyn Bsdf>, SceneError> {
     Ok(match props.plugin_type.as_str() {
@@ -277,4 +294,25 @@ pub(crate) fn finish_sample(
         return None;
     }
     Some(BsdfSample { wo, weight: weight.max(Vec3::ZERO), pdf, lobe, eta })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn shading_normal_correction_is_one_without_bump_and_for_radiance() {
+        let ng = Vec3::Z;
+        let ns = Vec3::new(0.2, 0.0, 1.0).normalize();
+        let wi = Vec3::new(0.3, 0.1, 0.9).normalize();
+        let wo = Vec3::new(-0.5, 0.2, 0.6).normalize();
+        assert_eq!(shading_normal_correction(TransportMode::Radiance, wi, wo, ng, ns), 1.0);
+        let same = shading_normal_correction(TransportMode::Importance, wi, wo, ng, ng);
+        assert!((same - 1.0).abs() < 1e-6);
+        let c = shading_normal_correction(TransportMode::Importance, wi, wo, ng, ns);
+        let expected = wi.dot(ns) * wo.dot(ng) / (wi.dot(ng) * wo.dot(ns));
+        assert!((c - expected).abs() < 1e-6 && c != 1.0);
+        let grazing = Vec3::new(1.0, 0.0, 0.0);
+        assert_eq!(shading_normal_correction(TransportMode::Importance, grazing, wo, ng, ns), 0.0);
+    }
 }
