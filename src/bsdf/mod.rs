@@ -8,9 +8,23 @@
 //! and `pdf` (they return zero) and reachable only through `sample` (with `pdf` = the discrete lobe
 //! probability, flagged by `BsdfLobe::is_delta`).
 
-use crate::scene::{Props, SceneError};
+pub mod conductor;
+pub mod dielectric;
+pub mod diffuse;
+pub mod fresnel;
+pub mod ior;
+pub mod microfacet;
+pub mod plastic;
+pub mod roughconductor;
+pub mod roughdielectric;
+pub mod roughplastic;
+pub mod twosided;
+
+use crate::scene::{PropValue, Props, SceneError};
 use crate::spectrum::Spectrum;
+use crate::texture::Texture;
 use glam::{Vec2, Vec3};
+use microfacet::MicrofacetKind;
 use std::fmt::Debug;
 use std::path::Path;
 use std::sync::Arc;
@@ -121,7 +135,174 @@ pub struct BsdfLoader<'a> {
     pub base_dir: &'a Path,
 }
 
-/// Builds a BSDF from its `<bsdf>` element (placeholder until the BSDF library lands).
-pub fn from_props(props: &Props, _loader: &BsdfLoader) -> Result<Arc<dyn Bsdf>, SceneError> {
-    Err(props.error(format!("unsupported BSDF type '{}'", props.plugin_type)))
+/// Builds a BSDF from its `<bsdf>` element.
+pub fn from_props(props: &Props, loader: &BsdfLoader) -> Result<Arc<dyn Bsdf>, SceneError> {
+    Ok(match props.plugin_type.as_str() {
+        "diffuse" => Arc::new(diffuse::Diffuse::from_props(props, loader)?),
+        "conductor" => Arc::new(conductor::SmoothConductor::from_props(props, loader)?),
+        "roughconductor" => Arc::new(roughconductor::RoughConductor::from_props(props, loader)?),
+        "dielectric" => Arc::new(dielectric::SmoothDielectric::from_props(props, loader)?),
+        "roughdielectric" => Arc::new(roughdielectric::RoughDielectric::from_props(props, loader)?),
+        "plastic" => Arc::new(plastic::SmoothPlastic::from_props(props, loader)?),
+        "roughplastic" => Arc::new(roughplastic::RoughPlastic::from_props(props, loader)?),
+        "twosided" => Arc::new(twosided::TwoSided::from_props(props, loader)?),
+        other => {
+            return Err(props.error(format!(
+                "unsupported BSDF type '{other}' (supported: diffuse, conductor, roughconductor, \
+                 dielectric, roughdielectric, plastic, roughplastic, twosided)"
+            )))
+        }
+    })
+}
+
+impl BsdfLoader<'_> {
+    /// A colour-or-texture parameter, relative file names resolved against `base_dir`.
+    pub fn texture(
+        &self,
+        props: &Props,
+        name: &str,
+        default: Spectrum,
+    ) -> Result<Texture, SceneError> {
+        Texture::from_param_in(props, name, default, self.base_dir)
+    }
+
+    /// An optional colour-or-texture parameter (`None` when absent, so the BSDF can skip it).
+    pub fn texture_opt(&self, props: &Props, name: &str) -> Result<Option<Texture>, SceneError> {
+        if props.has(name) {
+            Ok(Some(self.texture(props, name, Vec3::ONE)?))
+        } else {
+            Ok(None)
+        }
+    }
+}
+
+/// Reads `distribution` (`beckmann` or `ggx`, case-insensitive; Beckmann by default as in Mitsuba 3).
+pub(crate) fn read_distribution(props: &Props) -> Result<MicrofacetKind, SceneError> {
+    match props
+        .string("distribution", "beckmann")?
+        .to_ascii_lowercase()
+        .as_str()
+    {
+        "beckmann" => Ok(MicrofacetKind::Beckmann),
+        "ggx" => Ok(MicrofacetKind::Ggx),
+        other => Err(props.error_at(
+            "distribution",
+            format!("invalid distribution '{other}' (expected beckmann or ggx)"),
+        )),
+    }
+}
+
+fn read_roughness(props: &Props, name: &str) -> Result<Option<f32>, SceneError> {
+    if let Some(PropValue::Object(_)) = props.get(name).map(|p| &p.value) {
+        return Err(props.error_at(
+            name,
+            format!("textured roughness is not supported; give '{name}' as a float"),
+        ));
+    }
+    let v = props.float_opt(name)?;
+    if let Some(a) = v {
+        if !(a.is_finite() && a >= 0.0) {
+            return Err(props.error_at(
+                name,
+                format!("'{name}' must be a non-negative number, got {a}"),
+            ));
+        }
+    }
+    Ok(v)
+}
+
+/// Reads `alpha` (default 0.1) or the anisotropic pair `alpha_u`/`alpha_v`, with Mitsuba 3's rules:
+/// both of the pair or neither, and never together with `alpha`.
+pub(crate) fn read_alpha(props: &Props) -> Result<(f32, f32), SceneError> {
+    let au = read_roughness(props, "alpha_u")?;
+    let av = read_roughness(props, "alpha_v")?;
+    let a = read_roughness(props, "alpha")?;
+    match (a, au, av) {
+        (Some(_), Some(_), _) | (Some(_), _, Some(_)) => {
+            Err(props.error("specify either 'alpha' or 'alpha_u'/'alpha_v', not both"))
+        }
+        (_, Some(u), Some(v)) => Ok((u, v)),
+        (_, Some(_), None) | (_, None, Some(_)) => {
+            Err(props.error("both 'alpha_u' and 'alpha_v' must be specified"))
+        }
+        (a, None, None) => {
+            let a = a.unwrap_or(0.1);
+            Ok((a, a))
+        }
+    }
+}
+
+/// Relative index int_ior/ext_ior from `int_ior`/`ext_ior` (numbers or names).
+pub(crate) fn read_eta(
+    props: &Props,
+    int_default: &str,
+    require_mismatch: bool,
+) -> Result<f32, SceneError> {
+    let int_ior = ior::read_ior(props, "int_ior", int_default)?;
+    let ext_ior = ior::read_ior(props, "ext_ior", "air")?;
+    if require_mismatch && int_ior == ext_ior {
+        return Err(props.error("the interior and exterior indices of refraction must differ"));
+    }
+    Ok(int_ior / ext_ior)
+}
+
+/// Complex index of a conductor: `material` preset (default "none", an ideal mirror) or explicit `eta`/`k`.
+pub(crate) fn read_conductor_ior(
+    props: &Props,
+    loader: &BsdfLoader,
+) -> Result<(Texture, Texture), SceneError> {
+    let material = props.string("material", "none")?;
+    if props.has("eta") || props.has("k") || material == "none" {
+        if material != "none" {
+            return Err(props.error_at(
+                "material",
+                "specify either 'material' or 'eta'/'k', not both",
+            ));
+        }
+        let eta = loader.texture(props, "eta", Vec3::ZERO)?;
+        let k = loader.texture(props, "k", Vec3::ONE)?;
+        return Ok((eta, k));
+    }
+    match ior::conductor_preset(&material) {
+        Some((eta, k)) => Ok((Texture::Constant(eta), Texture::Constant(k))),
+        None => Err(props.error_at(
+            "material",
+            format!(
+                "unknown conductor material '{material}' (known: {})",
+                ior::conductor_preset_names().join(", ")
+            ),
+        )),
+    }
+}
+
+/// Replaces non-finite or negative results by zero: BSDFs never hand NaN/Inf to integrators.
+pub(crate) fn sanitize(s: Spectrum) -> Spectrum {
+    if s.is_finite() {
+        s.max(Vec3::ZERO)
+    } else {
+        Vec3::ZERO
+    }
+}
+
+/// Finishes a sample: rejects zero/non-finite pdfs and weights.
+pub(crate) fn finish_sample(
+    wo: Vec3,
+    weight: Spectrum,
+    pdf: f32,
+    lobe: BsdfLobe,
+    eta: f32,
+) -> Option<BsdfSample> {
+    if !(pdf > 0.0 && pdf.is_finite() && wo.is_finite() && weight.is_finite()) {
+        return None;
+    }
+    if weight.max_element() <= 0.0 {
+        return None;
+    }
+    Some(BsdfSample {
+        wo,
+        weight: weight.max(Vec3::ZERO),
+        pdf,
+        lobe,
+        eta,
+    })
 }
