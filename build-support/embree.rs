@@ -23,6 +23,17 @@ pub fn configure() {
     println!("cargo:rerun-if-changed={VENDORED_BINDINGS}");
     println!("cargo::rustc-check-cfg=cfg({BINDGEN_CFG})");
 
+    if env::var_os("CARGO_FEATURE_EMBREE4").is_some() {
+        // Embree 4 renames the library and headers (embree4/rtcore.h), drops RTCIntersectContext
+        // for per-call argument structs and changes rtcIntersect/rtcOccluded; building the Embree 3
+        // FFI against it would not even link. Refuse clearly instead of half-working.
+        fail(
+            "the `embree4` feature is reserved for distributions that ship only Embree 4, but \
+             Embree 4 support is not implemented yet. Build without `--features embree4` (and without \
+             `--all-features`) against Embree 3 (Debian: libembree-dev 3.x).",
+        );
+    }
+
     let install = locate().unwrap_or_else(|msg| fail(&msg));
     let config_header = install.header_dir.join("rtcore_config.h");
     println!("cargo:rerun-if-changed={}", config_header.display());

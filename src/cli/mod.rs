@@ -1,6 +1,8 @@
 //! Command-line interface: `render`, `info` and `bench`. Parsing is clap's; this module turns the
 //! arguments into load and render options and writes the outputs with their metadata.
 
+pub mod assets;
+
 use crate::accel::AccelKind;
 use crate::image::{ImageBuf, Metadata};
 use crate::integrators::{self, DepthLimits, IntegratorKind};
@@ -33,6 +35,9 @@ pub enum Command {
     Info(SceneArgs),
     /// Measure path-tracer throughput on a scene and the share of time spent in ray queries.
     Bench(BenchArgs),
+    /// Write the man pages and shell completions into a directory (used by scripts/build-deb.sh).
+    #[command(hide = true)]
+    GenerateAssets(assets::GenerateAssetsArgs),
 }
 
 #[derive(Args, Debug, Clone)]
@@ -111,6 +116,7 @@ pub fn run(cli: Cli) -> anyhow::Result<i32> {
         Command::Render(args) => run_render(args),
         Command::Info(args) => run_info(args),
         Command::Bench(args) => run_bench(args),
+        Command::GenerateAssets(args) => assets::run(args),
     }
 }
 
