@@ -58,10 +58,6 @@ fn long_version() -> String {
         env!("CARGO_PKG_VERSION"),
         hslt::accel::embree_version(),
         oiio,
-        if features.is_empty() {
-            "(none)".to_string()
-        } else {
-            features.join(", ")
-        }
+        if features.is_empty() { "(none)".to_string() } else { features.join(", ") }
     )
 }

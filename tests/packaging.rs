@@ -23,38 +23,26 @@ fn visible_subcommands() -> Vec<String> {
 fn man_page_names_every_subcommand_and_each_has_its_own_page() {
     let cmd = assets::command();
     let page = String::from_utf8(assets::man_page(&cmd).unwrap()).unwrap();
-    assert!(
-        page.starts_with(".ie") || page.starts_with(".TH"),
-        "not roff: {page:.80}"
-    );
+    assert!(page.starts_with(".ie") || page.starts_with(".TH"), "not roff: {page:.80}");
     assert!(page.contains(".SH SYNOPSIS") && page.contains(".SH SUBCOMMANDS"));
     let subcommands = visible_subcommands();
     assert!(subcommands.len() >= 3, "{subcommands:?}");
     let all = assets::assets().unwrap();
     for name in &subcommands {
         // roff escapes '-' as '\-'.
-        assert!(
-            page.contains(&format!("hslt\\-{name}")),
-            "hslt.1 does not mention subcommand {name}"
-        );
+        assert!(page.contains(&format!("hslt\\-{name}")), "hslt.1 does not mention subcommand {name}");
         let sub_page = all
             .iter()
             .find(|a| a.file_name == format!("hslt-{name}.1"))
             .unwrap_or_else(|| panic!("no page for {name}"));
         let text = String::from_utf8_lossy(&sub_page.contents);
-        assert!(
-            text.contains(".SH OPTIONS"),
-            "hslt-{name}.1 lists no options"
-        );
+        assert!(text.contains(".SH OPTIONS"), "hslt-{name}.1 lists no options");
     }
     // The render page documents each of its long options.
     let render = all.iter().find(|a| a.file_name == "hslt-render.1").unwrap();
     let render = String::from_utf8_lossy(&render.contents);
     for long in ["output", "spp", "threads", "seed", "max\\-depth"] {
-        assert!(
-            render.contains(&format!("\\-\\-{long}")),
-            "--{long} missing"
-        );
+        assert!(render.contains(&format!("\\-\\-{long}")), "--{long} missing");
     }
 }
 
@@ -67,9 +55,7 @@ fn assets_are_reproducible() {
     let title = page.lines().find(|l| l.starts_with(".TH")).unwrap();
     assert!(title.contains(env!("CARGO_PKG_VERSION")), "{title}");
     // No generation date: the page must not change from one day to the next.
-    let year_like = title
-        .split(|c: char| !c.is_ascii_digit())
-        .any(|w| w.len() == 4 && w.starts_with("20"));
+    let year_like = title.split(|c: char| !c.is_ascii_digit()).any(|w| w.len() == 4 && w.starts_with("20"));
     assert!(!year_like, "{title}");
 }
 
@@ -84,16 +70,14 @@ fn completions_cover_every_subcommand() {
         assert!(script.contains("spp"), "{file_name} lacks render's options");
     }
     let bash = assets::completion(clap_complete::Shell::Bash);
-    if let Ok(out) = Command::new("bash")
-        .arg("-n")
-        .stdin(std::process::Stdio::piped())
-        .arg("/dev/stdin")
-        .spawn()
-        .and_then(|mut child| {
-            use std::io::Write;
-            child.stdin.take().unwrap().write_all(&bash)?;
-            child.wait_with_output()
-        })
+    if let Ok(out) =
+        Command::new("bash").arg("-n").stdin(std::process::Stdio::piped()).arg("/dev/stdin").spawn().and_then(
+            |mut child| {
+                use std::io::Write;
+                child.stdin.take().unwrap().write_all(&bash)?;
+                child.wait_with_output()
+            },
+        )
     {
         assert!(out.status.success(), "bash -n rejects the bash completion");
     }
@@ -104,13 +88,8 @@ fn generate_assets_writes_every_file_the_deb_metadata_lists() {
     let dir = std::env::temp_dir().join(format!("hslt-packaging-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     let out = hslt().arg("generate-assets").arg(&dir).output().unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let manifest =
-        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("Cargo.toml")).unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let manifest = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("Cargo.toml")).unwrap();
     let listed: Vec<&str> = manifest
         .lines()
         .filter_map(|l| l.trim().strip_prefix("[\"target/assets/"))
@@ -121,13 +100,7 @@ fn generate_assets_writes_every_file_the_deb_metadata_lists() {
         if let Some(ext) = name.strip_prefix('*') {
             let matching = std::fs::read_dir(&dir)
                 .unwrap()
-                .filter(|e| {
-                    e.as_ref()
-                        .unwrap()
-                        .file_name()
-                        .to_string_lossy()
-                        .ends_with(ext)
-                })
+                .filter(|e| e.as_ref().unwrap().file_name().to_string_lossy().ends_with(ext))
                 .count();
             // hslt.1 and one page per subcommand.
             assert_eq!(matching, 1 + visible_subcommands().len(), "{name}");
@@ -147,10 +120,7 @@ fn long_version_names_the_loaded_libraries_and_features() {
     let out = hslt().arg("--version").output().unwrap();
     assert!(out.status.success());
     let text = String::from_utf8(out.stdout).unwrap();
-    assert!(
-        text.starts_with(&format!("hslt {}\n", env!("CARGO_PKG_VERSION"))),
-        "{text}"
-    );
+    assert!(text.starts_with(&format!("hslt {}\n", env!("CARGO_PKG_VERSION"))), "{text}");
     let embree = hslt::accel::embree_version();
     assert!(embree.starts_with("3."), "Embree did not start: {embree}");
     assert!(text.contains(&format!("Embree {embree}")), "{text}");
@@ -162,26 +132,15 @@ fn long_version_names_the_loaded_libraries_and_features() {
         .lines()
         .find_map(|l| l.strip_prefix("features: "))
         .unwrap_or_else(|| panic!("no features line: {text}"));
-    assert_eq!(
-        features.split(", ").any(|f| f == "oiio"),
-        cfg!(feature = "oiio"),
-        "{text}"
-    );
-    assert_eq!(
-        features.split(", ").any(|f| f == "bindgen"),
-        cfg!(feature = "bindgen"),
-        "{text}"
-    );
+    assert_eq!(features.split(", ").any(|f| f == "oiio"), cfg!(feature = "oiio"), "{text}");
+    assert_eq!(features.split(", ").any(|f| f == "bindgen"), cfg!(feature = "bindgen"), "{text}");
 }
 
 #[test]
 fn short_version_stays_one_line_and_subcommands_still_parse() {
     let out = hslt().arg("-V").output().unwrap();
     assert!(out.status.success());
-    assert_eq!(
-        String::from_utf8(out.stdout).unwrap(),
-        format!("hslt {}\n", env!("CARGO_PKG_VERSION"))
-    );
+    assert_eq!(String::from_utf8(out.stdout).unwrap(), format!("hslt {}\n", env!("CARGO_PKG_VERSION")));
     // The two-pass parse must not change ordinary errors: an unknown flag is still exit code 2.
     let out = hslt().args(["render", "--no-such-flag"]).output().unwrap();
     assert_eq!(out.status.code(), Some(2));

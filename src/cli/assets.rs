@@ -26,11 +26,8 @@ pub struct Asset {
 
 /// The shells we ship completions for, with the file name each one's loader looks for
 /// (bash-completion loads `completions/<command>`, zsh `_<command>`, fish `<command>.fish`).
-pub const SHELLS: [(Shell, &str); 3] = [
-    (Shell::Bash, "hslt.bash"),
-    (Shell::Zsh, "_hslt"),
-    (Shell::Fish, "hslt.fish"),
-];
+pub const SHELLS: [(Shell, &str); 3] =
+    [(Shell::Bash, "hslt.bash"), (Shell::Zsh, "_hslt"), (Shell::Fish, "hslt.fish")];
 
 /// The clap command as users see it: hidden subcommands (this generator) are left out, because the
 /// completion generators list every subcommand regardless of `hide`; clap's implicit `help`
@@ -100,25 +97,16 @@ fn extra_sections() -> String {
 /// the completion scripts of [`SHELLS`].
 pub fn assets() -> anyhow::Result<Vec<Asset>> {
     let cmd = command();
-    let mut out = vec![Asset {
-        file_name: "hslt.1".to_string(),
-        contents: man_page(&cmd)?,
-    }];
+    let mut out = vec![Asset { file_name: "hslt.1".to_string(), contents: man_page(&cmd)? }];
     for sub in cmd.get_subcommands() {
         // After `build()`, a subcommand's display name is "hslt-<name>", the conventional page name.
         let man = clap_mangen::Man::new(sub.clone());
         let mut contents = Vec::new();
         man.render(&mut contents)?;
-        out.push(Asset {
-            file_name: man.get_filename(),
-            contents,
-        });
+        out.push(Asset { file_name: man.get_filename(), contents });
     }
     for (shell, file_name) in SHELLS {
-        out.push(Asset {
-            file_name: file_name.to_string(),
-            contents: completion(shell),
-        });
+        out.push(Asset { file_name: file_name.to_string(), contents: completion(shell) });
     }
     Ok(out)
 }
@@ -137,8 +125,7 @@ pub fn write_assets(dir: &Path) -> anyhow::Result<Vec<PathBuf>> {
     let mut written = Vec::new();
     for asset in assets()? {
         let path = dir.join(&asset.file_name);
-        std::fs::write(&path, &asset.contents)
-            .with_context(|| format!("cannot write {}", path.display()))?;
+        std::fs::write(&path, &asset.contents).with_context(|| format!("cannot write {}", path.display()))?;
         written.push(path);
     }
     Ok(written)
@@ -174,11 +161,8 @@ mod tests {
         let full = Cli::command();
         let public = command();
         assert_eq!(full.get_name(), public.get_name());
-        let visible: Vec<&str> = full
-            .get_subcommands()
-            .filter(|s| !s.is_hide_set())
-            .map(|s| s.get_name())
-            .collect();
+        let visible: Vec<&str> =
+            full.get_subcommands().filter(|s| !s.is_hide_set()).map(|s| s.get_name()).collect();
         let kept: Vec<&str> = public.get_subcommands().map(|s| s.get_name()).collect();
         assert_eq!(visible, kept);
         for arg in full.get_arguments() {
