@@ -99,7 +99,8 @@ fn parse_define(s: &str) -> Result<(String, String), String> {
 fn parse_accel(name: &str) -> anyhow::Result<AccelKind> {
     match name {
         "embree" => Ok(AccelKind::Embree),
-        other => bail!("unknown ray-query backend '{other}' (available: embree)"),
+        "bvh" => Ok(AccelKind::Bvh),
+        other => bail!("unknown ray-query backend '{other}' (available: embree, bvh)"),
     }
 }
 
