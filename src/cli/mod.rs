@@ -31,8 +31,32 @@ pub enum Command {
     Render(RenderArgs),
     /// Describe a scene: geometry, materials, lights, textures and which renderer features it needs.
     Info(SceneArgs),
-    /// Measure path-tracer throughput on a scene and the share of time spent in ray queries.
-    Bench(BenchArgs),
+    /// Benchmarks: `bench pt SCENE` (path tracer) or `bench rays SCENE` (Embree vs the Rust BVH).
+    #[command(subcommand)]
+    Bench(BenchCommand),
+}
+
+#[derive(Subcommand, Debug)]
+pub enum BenchCommand {
+    /// Path-tracer throughput and the share of time spent in ray queries.
+    Pt(BenchArgs),
+    /// Ray-query backends compared on the scene's ray sets and on a generated 1M-triangle scene.
+    Rays(BenchRaysArgs),
+}
+
+#[derive(Args, Debug)]
+pub struct BenchRaysArgs {
+    #[command(flatten)]
+    pub scene: SceneArgs,
+    /// Rays per ray set.
+    #[arg(long, default_value_t = 1_000_000)]
+    pub rays: usize,
+    /// Worker threads (0 = all cores).
+    #[arg(long, default_value_t = 0)]
+    pub threads: usize,
+    /// Triangles of the generated scene (0 = skip it).
+    #[arg(long, default_value_t = 1_000_000)]
+    pub large: usize,
 }
 
 #[derive(Args, Debug, Clone)]
@@ -84,6 +108,9 @@ pub struct BenchArgs {
     /// Samples per pixel for each measured run.
     #[arg(long, default_value_t = 4)]
     pub spp: u32,
+    /// Ray-query backend.
+    #[arg(long, default_value = "embree")]
+    pub accel: String,
     /// Worker threads (0 = all cores).
     #[arg(long, default_value_t = 0)]
     pub threads: usize,
@@ -111,7 +138,8 @@ pub fn run(cli: Cli) -> anyhow::Result<i32> {
     match cli.command {
         Command::Render(args) => run_render(args),
         Command::Info(args) => run_info(args),
-        Command::Bench(args) => run_bench(args),
+        Command::Bench(BenchCommand::Pt(args)) => run_bench(args),
+        Command::Bench(BenchCommand::Rays(args)) => run_bench_rays(args),
     }
 }
 
@@ -278,7 +306,7 @@ pub fn describe(scene: &Scene) -> String {
 }
 
 fn run_bench(args: BenchArgs) -> anyhow::Result<i32> {
-    let mut scene = load(&args.scene, AccelKind::Embree)?;
+    let mut scene = load(&args.scene, parse_accel(&args.accel)?)?;
     let pool = thread_pool(args.threads)?;
     let threads = pool.current_num_threads();
     let integrator = integrators::make(
@@ -316,6 +344,18 @@ fn run_bench(args: BenchArgs) -> anyhow::Result<i32> {
         100.0 * query_secs / busy.max(1e-9),
         clock.calls()
     );
+    Ok(0)
+}
+
+fn run_bench_rays(args: BenchRaysArgs) -> anyhow::Result<i32> {
+    let pool = thread_pool(args.threads)?;
+    let scene = crate::bench::load_scene(&args.scene.scene, &args.scene.define)?;
+    print!("{}", crate::bench::bench_rays(&scene, args.rays, &pool)?);
+    if args.large > 0 {
+        let n = ((args.large as f64 / 2.0).sqrt().ceil() as usize).max(2);
+        println!();
+        print!("{}", crate::bench::bench_rays(&crate::bench::large_scene(n), args.rays, &pool)?);
+    }
     Ok(0)
 }
 
