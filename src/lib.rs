@@ -6,6 +6,7 @@
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 pub mod accel;
+pub mod bench;
 pub mod bsdf;
 pub mod cli;
 pub mod geometry;

@@ -1,10 +1,12 @@
 //! Ray-query backends. The renderer asks only "what does this ray hit first" and "is this segment
-//! blocked", for one ray or a batch; Embree (through FFI) answers by default, and the trait keeps
-//! the door open for a pure-Rust BVH so the two can be compared on the same scene.
+//! blocked", for one ray or a batch; Embree (through FFI) answers by default, and a pure-Rust
+//! BVH (`obvhs`) answers the same queries so the two can be compared on the same scene.
 
+pub mod bvh;
 pub mod embree;
 pub mod timed;
 
+pub use bvh::BvhScene;
 pub use embree::{embree_version, set_flush_denormals, EmbreeScene};
 
 use crate::geometry::{Ray, TriangleMesh};
@@ -66,11 +68,14 @@ impl RayQuery for NoGeometry {
 pub enum AccelKind {
     #[default]
     Embree,
+    /// Pure-Rust compressed wide BVH (`obvhs`) with a watertight triangle test.
+    Bvh,
 }
 
 /// Builds the acceleration structure for `meshes` with the chosen backend.
 pub fn build(kind: AccelKind, meshes: &[TriangleMesh]) -> anyhow::Result<Box<dyn RayQuery>> {
     match kind {
         AccelKind::Embree => Ok(Box::new(embree::EmbreeScene::build(meshes)?)),
+        AccelKind::Bvh => Ok(Box::new(bvh::BvhScene::build(meshes)?)),
     }
 }

@@ -33,11 +33,35 @@ pub enum Command {
     Render(RenderArgs),
     /// Describe a scene: geometry, materials, lights, textures and which renderer features it needs.
     Info(SceneArgs),
-    /// Measure path-tracer throughput on a scene and the share of time spent in ray queries.
-    Bench(BenchArgs),
+    /// Benchmarks: `bench pt SCENE` (path tracer) or `bench rays SCENE` (Embree vs the Rust BVH).
+    #[command(subcommand)]
+    Bench(BenchCommand),
     /// Write the man pages and shell completions into a directory (used by scripts/build-deb.sh).
     #[command(hide = true)]
     GenerateAssets(assets::GenerateAssetsArgs),
+}
+
+#[derive(Subcommand, Debug)]
+pub enum BenchCommand {
+    /// Path-tracer throughput and the share of time spent in ray queries.
+    Pt(BenchArgs),
+    /// Ray-query backends compared on the scene's ray sets and on a generated 1M-triangle scene.
+    Rays(BenchRaysArgs),
+}
+
+#[derive(Args, Debug)]
+pub struct BenchRaysArgs {
+    #[command(flatten)]
+    pub scene: SceneArgs,
+    /// Rays per ray set.
+    #[arg(long, default_value_t = 1_000_000)]
+    pub rays: usize,
+    /// Worker threads (0 = all cores).
+    #[arg(long, default_value_t = 0)]
+    pub threads: usize,
+    /// Triangles of the generated scene (0 = skip it).
+    #[arg(long, default_value_t = 1_000_000)]
+    pub large: usize,
 }
 
 #[derive(Args, Debug, Clone)]
@@ -89,6 +113,9 @@ pub struct BenchArgs {
     /// Samples per pixel for each measured run.
     #[arg(long, default_value_t = 4)]
     pub spp: u32,
+    /// Ray-query backend.
+    #[arg(long, default_value = "embree")]
+    pub accel: String,
     /// Worker threads (0 = all cores).
     #[arg(long, default_value_t = 0)]
     pub threads: usize,
@@ -104,7 +131,8 @@ fn parse_define(s: &str) -> Result<(String, String), String> {
 fn parse_accel(name: &str) -> anyhow::Result<AccelKind> {
     match name {
         "embree" => Ok(AccelKind::Embree),
-        other => bail!("unknown ray-query backend '{other}' (available: embree)"),
+        "bvh" => Ok(AccelKind::Bvh),
+        other => bail!("unknown ray-query backend '{other}' (available: embree, bvh)"),
     }
 }
 
@@ -115,7 +143,8 @@ pub fn run(cli: Cli) -> anyhow::Result<i32> {
     match cli.command {
         Command::Render(args) => run_render(args),
         Command::Info(args) => run_info(args),
-        Command::Bench(args) => run_bench(args),
+        Command::Bench(BenchCommand::Pt(args)) => run_bench(args),
+        Command::Bench(BenchCommand::Rays(args)) => run_bench_rays(args),
         Command::GenerateAssets(args) => assets::run(args),
     }
 }
@@ -283,7 +312,7 @@ pub fn describe(scene: &Scene) -> String {
 }
 
 fn run_bench(args: BenchArgs) -> anyhow::Result<i32> {
-    let mut scene = load(&args.scene, AccelKind::Embree)?;
+    let mut scene = load(&args.scene, parse_accel(&args.accel)?)?;
     let pool = thread_pool(args.threads)?;
     let threads = pool.current_num_threads();
     let integrator = integrators::make(
@@ -321,6 +350,18 @@ fn run_bench(args: BenchArgs) -> anyhow::Result<i32> {
         100.0 * query_secs / busy.max(1e-9),
         clock.calls()
     );
+    Ok(0)
+}
+
+fn run_bench_rays(args: BenchRaysArgs) -> anyhow::Result<i32> {
+    let pool = thread_pool(args.threads)?;
+    let scene = crate::bench::load_scene(&args.scene.scene, &args.scene.define)?;
+    print!("{}", crate::bench::bench_rays(&scene, args.rays, &pool)?);
+    if args.large > 0 {
+        let n = ((args.large as f64 / 2.0).sqrt().ceil() as usize).max(2);
+        println!();
+        print!("{}", crate::bench::bench_rays(&crate::bench::large_scene(n), args.rays, &pool)?);
+    }
     Ok(0)
 }
 

@@ -177,6 +177,117 @@ impl EmbreeScene {
     }
 }
 
+/// Stream queries (`rtcIntersect1M`/`rtcOccluded1M`) and a raw-bindings loop, for `hslt bench rays`.
+impl EmbreeScene {
+    /// Closest hits through Embree's stream API: the rays go in one array and Embree regroups them
+    /// into packets itself. `coherent` sets the context hint. Invalid rays get `None`.
+    pub fn intersect_stream(&self, rays: &[Ray], hits: &mut [Option<Hit>], coherent: bool) {
+        let mut stream: Vec<ffi::RTCRayHit> = Vec::with_capacity(rays.len());
+        let mut valid = Vec::with_capacity(rays.len());
+        for ray in rays {
+            let prepared = PreparedRay::new(ray);
+            valid.push(prepared.is_some());
+            // An invalid ray becomes an empty interval, which Embree skips.
+            let rtc_ray = prepared.map_or(
+                ffi::RTCRay { tnear: 1.0, tfar: 0.0, dir_z: 1.0, mask: u32::MAX, ..Default::default() },
+                PreparedRay::to_rtc_ray,
+            );
+            stream.push(ffi::RTCRayHit {
+                ray: rtc_ray,
+                hit: ffi::RTCHit { geomID: ffi::RTC_INVALID_GEOMETRY_ID, ..Default::default() },
+            });
+        }
+        let mut context = new_context();
+        if coherent {
+            context.flags = ffi::RTC_INTERSECT_CONTEXT_FLAG_COHERENT;
+        }
+        // SAFETY: the scene is committed; `stream` holds `rays.len()` initialised, aligned RTCRayHit
+        // structs laid out with their own size as stride, and lives for the call.
+        unsafe {
+            ffi::rtcIntersect1M(
+                self.scene.0,
+                &mut context,
+                stream.as_mut_ptr(),
+                stream.len() as u32,
+                std::mem::size_of::<ffi::RTCRayHit>(),
+            )
+        };
+        self.debug_check();
+        for ((rh, ok), hit) in stream.iter().zip(valid).zip(hits.iter_mut()) {
+            *hit = (ok && rh.hit.geomID != ffi::RTC_INVALID_GEOMETRY_ID).then_some(Hit {
+                t: rh.ray.tfar,
+                geom_id: rh.hit.geomID,
+                prim_id: rh.hit.primID,
+                u: rh.hit.u,
+                v: rh.hit.v,
+            });
+        }
+    }
+
+    /// Occlusion through `rtcOccluded1M` (see [`Self::intersect_stream`]).
+    pub fn occluded_stream(&self, rays: &[Ray], occluded: &mut [bool], coherent: bool) {
+        let mut stream: Vec<ffi::RTCRay> = rays
+            .iter()
+            .map(|ray| {
+                PreparedRay::new(ray).map_or(
+                    ffi::RTCRay { tnear: 1.0, tfar: 0.0, dir_z: 1.0, mask: u32::MAX, ..Default::default() },
+                    PreparedRay::to_rtc_ray,
+                )
+            })
+            .collect();
+        let mut context = new_context();
+        if coherent {
+            context.flags = ffi::RTC_INTERSECT_CONTEXT_FLAG_COHERENT;
+        }
+        // SAFETY: as in `intersect_stream`, with RTCRay elements.
+        unsafe {
+            ffi::rtcOccluded1M(
+                self.scene.0,
+                &mut context,
+                stream.as_mut_ptr(),
+                stream.len() as u32,
+                std::mem::size_of::<ffi::RTCRay>(),
+            )
+        };
+        self.debug_check();
+        for (r, o) in stream.iter().zip(occluded.iter_mut()) {
+            *o = r.tfar == f32::NEG_INFINITY;
+        }
+    }
+
+    /// The baseline for the wrapper's overhead: `rtcIntersect1` on each ray straight from the
+    /// bindings, with no validation or conversion to `Hit`. Returns the number of hits. The rays
+    /// must be finite with `0 <= tmin < tmax` (unchecked input only yields misses, never UB).
+    pub fn raw_intersect1_loop(&self, rays: &[Ray]) -> usize {
+        let mut context = new_context();
+        let mut hits = 0;
+        for ray in rays {
+            let mut rayhit = ffi::RTCRayHit {
+                ray: ffi::RTCRay {
+                    org_x: ray.origin.x,
+                    org_y: ray.origin.y,
+                    org_z: ray.origin.z,
+                    tnear: ray.tmin,
+                    dir_x: ray.dir.x,
+                    dir_y: ray.dir.y,
+                    dir_z: ray.dir.z,
+                    time: 0.0,
+                    tfar: ray.tmax,
+                    mask: u32::MAX,
+                    id: 0,
+                    flags: 0,
+                },
+                hit: ffi::RTCHit { geomID: ffi::RTC_INVALID_GEOMETRY_ID, ..Default::default() },
+            };
+            // SAFETY: as in `intersect`; the struct is valid and aligned. Embree treats non-finite
+            // input as a miss or reports an error through the callback, it does not read out of bounds.
+            unsafe { ffi::rtcIntersect1(self.scene.0, &mut context, &mut rayhit) };
+            hits += usize::from(rayhit.hit.geomID != ffi::RTC_INVALID_GEOMETRY_ID);
+        }
+        hits
+    }
+}
+
 /// One packet kernel per SIMD width; the RTCRayHitN/RTCRayN structs differ only in lane count.
 macro_rules! packet_kernels {
     ($lanes:literal, $intersect:ident, $occluded:ident, $RayHitN:ty, $RayN:ty,
