@@ -474,3 +474,43 @@ fn runtime_version_and_packet_width_are_sane() {
         assert_eq!(scene.packet_width(), 8);
     }
 }
+
+/// The renderer's batch entry point (the trait method, which uses Embree's stream call) must give
+/// exactly the single-ray answers.
+#[test]
+fn trait_batch_queries_match_single_rays() {
+    use hslt::accel::{build, AccelKind, RayQuery};
+    use hslt::geometry::{Ray, TriangleMesh, Vec3};
+    use hslt::sampling::{square_to_uniform_sphere, Sampler};
+    let mut mesh = TriangleMesh { name: "grid".into(), ..Default::default() };
+    for i in 0..8 {
+        for j in 0..8 {
+            let (x, y) = (i as f32 - 4.0, j as f32 - 4.0);
+            let base = mesh.positions.len() as u32;
+            let z = 0.1 * ((i * 7 + j * 3) % 5) as f32;
+            mesh.positions.extend([Vec3::new(x, y, z), Vec3::new(x + 1.0, y, z), Vec3::new(x, y + 1.0, -z)]);
+            mesh.indices.push([base, base + 1, base + 2]);
+        }
+    }
+    let accel: Box<dyn RayQuery> = build(AccelKind::Embree, &[mesh]).unwrap();
+    let mut s = Sampler::new(5, 0, 0);
+    let rays: Vec<Ray> = (0..1003)
+        .map(|_| {
+            let o = Vec3::new(s.next_1d() * 8.0 - 4.0, s.next_1d() * 8.0 - 4.0, 3.0);
+            let mut d = square_to_uniform_sphere(s.next_2d());
+            d.z = -d.z.abs();
+            Ray::segment(o, d, 10.0 + s.next_1d() * 10.0)
+        })
+        .collect();
+    let mut hits = vec![None; rays.len()];
+    accel.intersect_batch(&rays, &mut hits);
+    let mut blocked = vec![false; rays.len()];
+    accel.occluded_batch(&rays, &mut blocked);
+    let mut n_hits = 0;
+    for (i, r) in rays.iter().enumerate() {
+        assert_eq!(hits[i], accel.intersect(r), "ray {i}");
+        assert_eq!(blocked[i], accel.occluded(r), "ray {i}");
+        n_hits += hits[i].is_some() as usize;
+    }
+    assert!(n_hits > 100 && n_hits < rays.len(), "degenerate ray set: {n_hits} hits");
+}

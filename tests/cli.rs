@@ -143,3 +143,17 @@ fn interrupt_writes_the_image_so_far() {
     let meta = hslt::image::read_exr_metadata(&exr).unwrap();
     assert!(meta.iter().any(|(k, v)| k == "hslt.interrupted" && v == "true"));
 }
+
+#[test]
+fn bench_rays_compares_both_backends() {
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/cornell-box/scene.xml");
+    let out = hslt()
+        .args(["bench", "rays", scene.to_str().unwrap(), "--rays", "4000", "--large", "0", "--threads", "1"])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", stderr(&out));
+    let text = String::from_utf8_lossy(&out.stdout);
+    for needle in ["embree", "bvh", "primary", "diffuse", "shadow", "corrector", "Mrays/s"] {
+        assert!(text.contains(needle), "'{needle}' missing from:\n{text}");
+    }
+}
