@@ -2,6 +2,8 @@
 //! and JPEG through OpenImageIO (or the png crate without the `oiio` feature), atomic writes and
 //! the public test scenes' reference renders and textures.
 
+mod common;
+
 use std::path::{Path, PathBuf};
 
 use hslt::image::{
@@ -57,16 +59,6 @@ fn test_image(width: usize, height: usize, channels: usize, salt: u32) -> ImageB
 
 fn meta(pairs: &[(&str, &str)]) -> Metadata {
     pairs.iter().map(|(k, v)| (k.to_string(), v.to_string())).collect()
-}
-
-/// The public scenes beside the repository (`../shared/scenes`, as on CI), or `HSLT_SHARED_SCENES`.
-/// Missing scenes fail the test instead of skipping it.
-fn scenes_dir() -> Option<PathBuf> {
-    let dir = std::env::var_os("HSLT_SHARED_SCENES")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/scenes"));
-    assert!(dir.is_dir(), "scene directory {} not found (set HSLT_SHARED_SCENES)", dir.display());
-    Some(dir)
 }
 
 #[test]
@@ -275,7 +267,7 @@ fn reading_bad_files_gives_errors_naming_them() {
 
 #[test]
 fn tungsten_reference_exrs_read_as_plausible_images() {
-    let Some(scenes) = scenes_dir() else { return };
+    let scenes = common::shared_scenes();
     let mut checked = 0;
     for scene in ["cornell-box", "veach-ajar", "veach-bidir", "veach-mis"] {
         let path = scenes.join(scene).join("TungstenRender.exr");
@@ -309,7 +301,7 @@ mod with_oiio {
 
     #[test]
     fn veach_ajar_jpeg_textures_read_and_linearise() {
-        let Some(scenes) = scenes_dir() else { return };
+        let scenes = common::shared_scenes();
         let dir = scenes.join("veach-ajar/textures");
         let mut count = 0;
         for entry in std::fs::read_dir(&dir).unwrap() {
@@ -341,7 +333,7 @@ mod with_oiio {
 
     #[test]
     fn concurrent_reads_agree() {
-        let Some(scenes) = scenes_dir() else { return };
+        let scenes = common::shared_scenes();
         let path = scenes.join("veach-ajar/textures/cherry-wood-texture.jpg");
         let reference = read_image(&path, true).unwrap();
         std::thread::scope(|s| {

@@ -17,15 +17,8 @@ fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
 
-/// The public test scenes live beside the repository (`../shared/scenes`, as on CI);
-/// `HSLT_SHARED_SCENES` points elsewhere. Missing scenes fail the test rather than skip it.
 fn shared_scene(name: &str) -> PathBuf {
-    let base = std::env::var_os("HSLT_SHARED_SCENES")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| root().join("../shared/scenes"));
-    let p = base.join(name);
-    assert!(p.is_dir(), "{} not found: set HSLT_SHARED_SCENES to the shared scenes folder", p.display());
-    p
+    common::shared_scenes().join(name)
 }
 
 /// How one reference comparison is set up.

@@ -1,6 +1,8 @@
 //! Integration tests of the shape loaders: every shape of the shared scenes, analytic shapes'
 //! normals/uvs/areas, PLY/OBJ edge cases (truncation, NaN, degenerate triangles, missing files).
 
+mod common;
+
 use glam::{Mat4, Vec2, Vec3};
 use hslt::geometry::TriangleMesh;
 use hslt::scene::shapes::{load_shape, sphere_resolution, LoadedShape};
@@ -11,20 +13,6 @@ use std::path::{Path, PathBuf};
 
 fn data_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/scene")
-}
-
-/// The public scenes beside the repository (`../shared/scenes`, as on CI), or `HSLT_SHARED_SCENES`.
-/// Missing scenes fail the test instead of skipping it.
-fn shared_scenes() -> Option<PathBuf> {
-    let dir = std::env::var_os("HSLT_SHARED_SCENES")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/scenes"));
-    assert!(
-        dir.join("cornell-box/scene.xml").is_file(),
-        "shared scenes not found at {} (set HSLT_SHARED_SCENES)",
-        dir.display()
-    );
-    Some(dir)
 }
 
 /// Parses a one-shape scene snippet and loads its shape relative to the fixture directory.
@@ -72,7 +60,7 @@ fn check_mesh(m: &TriangleMesh, what: &str) {
 
 #[test]
 fn all_shapes_of_shared_scenes_load() {
-    let Some(dir) = shared_scenes() else { return };
+    let dir = common::shared_scenes();
     for name in ["cornell-box", "veach-mis", "veach-bidir", "veach-ajar"] {
         let scene_dir = dir.join(name);
         let scene = hslt::scene::xml::parse_file(&scene_dir.join("scene.xml"), &[]).unwrap();
@@ -93,7 +81,7 @@ fn all_shapes_of_shared_scenes_load() {
 
 #[test]
 fn shared_scene_specifics() {
-    let Some(dir) = shared_scenes() else { return };
+    let dir = common::shared_scenes();
     // veach-mis: the 0.05-radius light sphere keeps its area within 1e-3.
     let scene = hslt::scene::xml::parse_file(&dir.join("veach-mis/scene.xml"), &[]).unwrap();
     let small = scene.objects_with_tag("shape").find(|s| s.id.as_deref() == Some("Null_0003")).unwrap();

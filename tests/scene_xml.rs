@@ -1,6 +1,8 @@
 //! Integration tests of the Mitsuba XML parser: the shared scenes, defines, errors with positions,
 //! 0.6 → 3.x upgrade, and transform composition against hand-computed matrices.
 
+mod common;
+
 use glam::{Mat4, Vec3};
 use hslt::scene::xml::parse_file;
 use hslt::scene::{PropValue, Props, SceneError};
@@ -9,20 +11,6 @@ use std::sync::Arc;
 
 fn data(rel: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/scene").join(rel)
-}
-
-/// The public scenes beside the repository (`../shared/scenes`, as on CI), or `HSLT_SHARED_SCENES`.
-/// Missing scenes fail the test instead of skipping it.
-fn shared_scenes() -> Option<PathBuf> {
-    let dir = std::env::var_os("HSLT_SHARED_SCENES")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/scenes"));
-    assert!(
-        dir.join("cornell-box/scene.xml").is_file(),
-        "shared scenes not found at {} (set HSLT_SHARED_SCENES)",
-        dir.display()
-    );
-    Some(dir)
 }
 
 fn top<'a>(scene: &'a Props, tag: &'a str) -> Vec<&'a Arc<Props>> {
@@ -38,7 +26,7 @@ fn err_of(rel: &str) -> SceneError {
 
 #[test]
 fn shared_scenes_parse_with_expected_counts() {
-    let Some(dir) = shared_scenes() else { return };
+    let dir = common::shared_scenes();
     // (scene, shapes, top-level bsdfs, emitters nested in shapes)
     for (name, shapes, bsdfs, emitters) in [
         ("cornell-box", 8, 8, 1),
@@ -73,7 +61,7 @@ fn shared_scenes_parse_with_expected_counts() {
 
 #[test]
 fn cornell_box_values_and_locations() {
-    let Some(dir) = shared_scenes() else { return };
+    let dir = common::shared_scenes();
     let path = dir.join("cornell-box/scene.xml");
     let scene = parse_file(&path, &[]).unwrap();
     let sensor = top(&scene, "sensor")[0];
@@ -99,7 +87,7 @@ fn cornell_box_values_and_locations() {
 
 #[test]
 fn defines_override_defaults() {
-    let Some(dir) = shared_scenes() else { return };
+    let dir = common::shared_scenes();
     let defines = vec![("spp".to_string(), "16".to_string()), ("integrator".to_string(), "bdpt".to_string())];
     let scene = parse_file(&dir.join("veach-mis/scene.xml"), &defines).unwrap();
     let sensor = top(&scene, "sensor")[0];

@@ -11,6 +11,21 @@
 #![allow(dead_code)]
 
 use hslt::image::ImageBuf;
+use std::path::{Path, PathBuf};
+
+/// The public test scenes beside the repository (`../shared/scenes`, as on CI), or the folder named
+/// by `HSLT_SHARED_SCENES`. Missing scenes fail the test rather than skip it.
+pub fn shared_scenes() -> PathBuf {
+    let dir = std::env::var_os("HSLT_SHARED_SCENES")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/scenes"));
+    assert!(
+        dir.join("cornell-box/scene.xml").is_file(),
+        "shared scenes not found at {} (set HSLT_SHARED_SCENES)",
+        dir.display()
+    );
+    dir
+}
 
 pub struct Comparison {
     /// mean(ours) / mean(reference) over the whole image, luminance-like (channel average).
