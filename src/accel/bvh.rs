@@ -154,17 +154,7 @@ fn to_obvhs_ray(ray: &Ray, tmin: f32, tmax: f32) -> obvhs::ray::Ray {
 /// Rejects rays that cannot hit anything (non-finite, zero direction, NaN or empty interval), the
 /// same set the Embree wrapper rejects, and sets up the per-ray part of the watertight test.
 fn prepare(ray: &Ray) -> Option<(WatertightRay, f32, f32)> {
-    if !ray.origin.is_finite() || !ray.dir.is_finite() || ray.dir == Vec3::ZERO {
-        return None;
-    }
-    if ray.tmin.is_nan() || ray.tmax.is_nan() {
-        return None;
-    }
-    let tmin = ray.tmin.max(0.0);
-    let tmax = ray.tmax;
-    if tmin >= tmax {
-        return None;
-    }
+    let (tmin, tmax) = super::query_interval(ray)?;
     Some((WatertightRay::new(ray.origin, ray.dir), tmin, tmax))
 }
 

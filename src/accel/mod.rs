@@ -48,6 +48,21 @@ pub trait RayQuery: Send + Sync {
     }
 }
 
+/// The query interval of a ray that can hit something, `(max(tmin, 0), tmax)`, or `None` for rays
+/// every backend treats as a miss: non-finite origin or direction, zero direction, NaN bounds or an
+/// empty interval. Backends share it so they agree on degenerate input.
+pub fn query_interval(ray: &Ray) -> Option<(f32, f32)> {
+    if !ray.origin.is_finite() || !ray.dir.is_finite() || ray.dir == crate::geometry::Vec3::ZERO {
+        return None;
+    }
+    if ray.tmin.is_nan() || ray.tmax.is_nan() {
+        return None;
+    }
+    // The renderer never asks for hits behind the origin, and Embree requires tnear >= 0.
+    let tmin = ray.tmin.max(0.0);
+    (tmin < ray.tmax).then_some((tmin, ray.tmax))
+}
+
 /// A backend over no geometry: every ray misses.
 pub struct NoGeometry;
 

@@ -440,23 +440,11 @@ struct PreparedRay {
 
 impl PreparedRay {
     fn new(ray: &Ray) -> Option<PreparedRay> {
-        if !ray.origin.is_finite() || !ray.dir.is_finite() || ray.dir == Vec3::ZERO {
-            return None;
-        }
-        if ray.tmin.is_nan() || ray.tmax.is_nan() {
-            return None;
-        }
-        // Embree requires tnear >= 0; the renderer never asks for hits behind the origin.
-        let tnear = ray.tmin.max(0.0);
         // Embree accepts tnear < t <= tfar, and its t carries a few ulps of error (it multiplies by
         // an approximate reciprocal: a hit at exactly t = 1 comes back as 1 - 2^-24), so the ends of
         // the interval only hold up to that precision. Shadow rays must shrink their segment by a
         // relative epsilon anyway; shifting tfar by an ulp here would promise more than Embree keeps.
-        let tfar = ray.tmax;
-        // NaNs were rejected above, so this ordering is total.
-        if tnear >= tfar {
-            return None;
-        }
+        let (tnear, tfar) = super::query_interval(ray)?;
         Some(PreparedRay { origin: ray.origin, dir: ray.dir, tnear, tfar })
     }
 
