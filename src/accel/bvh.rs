@@ -245,41 +245,9 @@ impl WatertightRay {
     }
 }
 
-fn mesh_label(index: usize, mesh: &TriangleMesh) -> String {
-    if mesh.name.is_empty() {
-        format!("mesh #{index}")
-    } else {
-        format!("mesh #{index} '{}'", mesh.name)
-    }
-}
-
+/// Rejects meshes the backend cannot take (see `TriangleMesh::validate`), naming the element.
 fn validate_mesh(index: usize, mesh: &TriangleMesh) -> anyhow::Result<()> {
-    if mesh.indices.len() > u32::MAX as usize {
-        bail!(
-            "BVH: {} has {} triangles; at most 2^32-1 are supported",
-            mesh_label(index, mesh),
-            mesh.indices.len()
-        );
-    }
-    if let Some((v, p)) = mesh.positions.iter().enumerate().find(|(_, p)| !p.is_finite()) {
-        bail!(
-            "BVH: {} vertex {v} has a non-finite position ({}, {}, {}); expected finite coordinates",
-            mesh_label(index, mesh),
-            p.x,
-            p.y,
-            p.z
-        );
-    }
-    let vertex_count = mesh.positions.len();
-    for (t, tri) in mesh.indices.iter().enumerate() {
-        if let Some(&bad) = tri.iter().find(|&&i| i as usize >= vertex_count) {
-            bail!(
-                "BVH: {} triangle {t} uses vertex index {bad}, but the mesh has {vertex_count} vertices",
-                mesh_label(index, mesh)
-            );
-        }
-    }
-    Ok(())
+    mesh.validate(index).map_err(|e| anyhow::anyhow!("BVH: {e}"))
 }
 
 #[cfg(test)]

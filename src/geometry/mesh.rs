@@ -37,6 +37,47 @@ impl TriangleMesh {
         (b - a).cross(c - a).normalize_or_zero()
     }
 
+    /// How the mesh is named in messages: `mesh #3 'Floor'`.
+    pub fn label(&self, index: usize) -> String {
+        if self.name.is_empty() {
+            format!("mesh #{index}")
+        } else {
+            format!("mesh #{index} '{}'", self.name)
+        }
+    }
+
+    /// Checks what every ray-query backend relies on: finite vertices, indices in range and counts
+    /// that fit 32-bit ids. The message names the mesh (as mesh number `index`) and the element.
+    pub fn validate(&self, index: usize) -> Result<(), String> {
+        if self.positions.len() > u32::MAX as usize || self.indices.len() > u32::MAX as usize {
+            return Err(format!(
+                "{} has {} vertices and {} triangles; at most 2^32-1 of each are supported",
+                self.label(index),
+                self.positions.len(),
+                self.indices.len()
+            ));
+        }
+        if let Some((v, p)) = self.positions.iter().enumerate().find(|(_, p)| !p.is_finite()) {
+            return Err(format!(
+                "{} vertex {v} has a non-finite position ({}, {}, {}); expected finite coordinates",
+                self.label(index),
+                p.x,
+                p.y,
+                p.z
+            ));
+        }
+        let vertex_count = self.positions.len();
+        for (t, tri) in self.indices.iter().enumerate() {
+            if let Some(&bad) = tri.iter().find(|&&i| i as usize >= vertex_count) {
+                return Err(format!(
+                    "{} triangle {t} uses vertex index {bad}, but the mesh has {vertex_count} vertices",
+                    self.label(index)
+                ));
+            }
+        }
+        Ok(())
+    }
+
     pub fn bounds(&self) -> Bounds3 {
         let mut b = Bounds3::default();
         for &p in &self.positions {

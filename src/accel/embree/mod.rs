@@ -63,7 +63,7 @@ impl EmbreeScene {
                 continue;
             }
             attach_mesh(&device, &scene, index, mesh)
-                .with_context(|| format!("Embree: building {}", mesh_label(index, mesh)))?;
+                .with_context(|| format!("Embree: building {}", mesh.label(index)))?;
         }
 
         // SAFETY: all geometries are committed and attached; the scene is committed once.
@@ -472,45 +472,10 @@ fn new_context() -> ffi::RTCIntersectContext {
     context
 }
 
-fn mesh_label(index: usize, mesh: &TriangleMesh) -> String {
-    if mesh.name.is_empty() {
-        format!("mesh #{index}")
-    } else {
-        format!("mesh #{index} '{}'", mesh.name)
-    }
-}
-
-/// Embree silently drops triangles with NaN vertices and reads out of bounds on bad indices, so both
-/// are rejected here with the offending element named.
+/// Embree silently drops triangles with NaN vertices and reads out of bounds on bad indices, so such
+/// meshes are rejected here (see `TriangleMesh::validate`) with the offending element named.
 fn validate_mesh(index: usize, mesh: &TriangleMesh) -> anyhow::Result<()> {
-    let label = || mesh_label(index, mesh);
-    if mesh.positions.len() > u32::MAX as usize || mesh.indices.len() > u32::MAX as usize {
-        bail!(
-            "Embree: {} has {} vertices and {} triangles; at most 2^32-1 of each are supported",
-            label(),
-            mesh.positions.len(),
-            mesh.indices.len()
-        );
-    }
-    if let Some((v, p)) = mesh.positions.iter().enumerate().find(|(_, p)| !p.is_finite()) {
-        bail!(
-            "Embree: {} vertex {v} has a non-finite position ({}, {}, {}); expected finite coordinates",
-            label(),
-            p.x,
-            p.y,
-            p.z
-        );
-    }
-    let vertex_count = mesh.positions.len();
-    for (t, tri) in mesh.indices.iter().enumerate() {
-        if let Some(&bad) = tri.iter().find(|&&i| i as usize >= vertex_count) {
-            bail!(
-                "Embree: {} triangle {t} uses vertex index {bad}, but the mesh has {vertex_count} vertices",
-                label()
-            );
-        }
-    }
-    Ok(())
+    mesh.validate(index).map_err(|e| anyhow::anyhow!("Embree: {e}"))
 }
 
 fn attach_mesh(
