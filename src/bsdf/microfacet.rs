@@ -126,6 +126,25 @@ impl Microfacet {
         }
     }
 
+    /// Solid-angle density of the reflected direction `wo` when `m` is drawn by `sample(wi, ·)` and `wi`
+    /// is mirrored about it: pdf(m) / (4 wo·m), the Jacobian of reflection (Walter et al. 2007, eq. 14).
+    /// Zero for directions below the surface or facing away from the half vector.
+    pub fn reflection_pdf(&self, wi: Vec3, wo: Vec3) -> f32 {
+        if wi.z <= 0.0 || wo.z <= 0.0 {
+            return 0.0;
+        }
+        let m = (wi + wo).normalize();
+        if !(wi.dot(m) > 0.0 && wo.dot(m) > 0.0) {
+            return 0.0;
+        }
+        let p = self.pdf(wi, m) / (4.0 * wo.dot(m));
+        if p.is_finite() {
+            p
+        } else {
+            0.0
+        }
+    }
+
     /// Samples a microfacet normal for incident direction `wi` (must have `wi.z > 0` when sampling
     /// visible normals). Returns the normal and its density, or `None` for a degenerate sample.
     pub fn sample(&self, wi: Vec3, u: Vec2) -> Option<(Vec3, f32)> {

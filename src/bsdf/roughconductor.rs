@@ -86,19 +86,7 @@ impl Bsdf for RoughConductor {
     }
 
     fn pdf(&self, _ctx: &BsdfContext, wi: Vec3, wo: Vec3) -> f32 {
-        if wi.z <= 0.0 || wo.z <= 0.0 {
-            return 0.0;
-        }
-        let m = (wi + wo).normalize();
-        if !(wi.dot(m) > 0.0 && wo.dot(m) > 0.0) {
-            return 0.0;
-        }
-        let p = self.distr.pdf(wi, m) / (4.0 * wo.dot(m));
-        if p.is_finite() {
-            p
-        } else {
-            0.0
-        }
+        self.distr.reflection_pdf(wi, wo)
     }
 
     fn sample(&self, ctx: &BsdfContext, wi: Vec3, _u_lobe: f32, u: Vec2) -> Option<BsdfSample> {

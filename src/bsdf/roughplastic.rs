@@ -203,12 +203,7 @@ impl Bsdf for RoughPlastic {
             return 0.0;
         }
         let p_spec = self.prob_specular(wi.z);
-        let h = (wi + wo).normalize();
-        let spec_pdf = if self.distr.sample_visible {
-            self.distr.d(h) * self.distr.g1(wi, h) / (4.0 * wi.z)
-        } else {
-            self.distr.pdf(wi, h) / (4.0 * wo.dot(h))
-        };
+        let spec_pdf = self.distr.reflection_pdf(wi, wo);
         let p = p_spec * spec_pdf + (1.0 - p_spec) * wo.z * FRAC_1_PI;
         if p.is_finite() {
             p
