@@ -41,7 +41,8 @@ fn time_budget_stops_the_render() {
         progress: false,
     };
     let never = std::sync::atomic::AtomicBool::new(false);
-    let (film, stats) = hslt::render::render(&scene, integrator.as_ref(), &options, &never);
+    let output = integrator.render(&scene, &options, &never);
+    let (film, stats) = (output.film, output.stats);
     assert!(stats.min_spp >= 1, "no complete pass in the time budget");
     // Generous bound: the loop must stop soon after the budget, not render forever.
     assert!(stats.elapsed.as_secs_f64() < 5.0, "took {:?}", stats.elapsed);

@@ -219,9 +219,11 @@ fn run_render(args: RenderArgs) -> anyhow::Result<i32> {
     });
     let pool = thread_pool(args.threads)?;
     let threads = pool.current_num_threads();
-    let (film, stats) = pool.install(|| render::render(&scene, integrator.as_ref(), &options, &CANCEL));
-    let image = film.to_image();
-    let meta = metadata(&scene, kind.name(), &options, limits, threads, &stats);
+    let output = pool.install(|| integrator.render(&scene, &options, &CANCEL));
+    let stats = output.stats;
+    let image = output.film.to_image();
+    let mut meta = metadata(&scene, kind.name(), &options, limits, threads, &stats);
+    meta.extend(output.metadata);
     for out in &args.output {
         crate::image::write_image(out, &image, &meta)
             .with_context(|| format!("cannot write {}", out.display()))?;
@@ -323,18 +325,11 @@ fn run_bench(args: BenchArgs) -> anyhow::Result<i32> {
     let options = RenderOptions { spp: Some(args.spp), time_limit: None, seed: 1, progress: false };
     let never = AtomicBool::new(false);
     // Warm-up pass so page faults and lazy initialisation are not measured.
-    pool.install(|| {
-        render::render(
-            &scene,
-            integrator.as_ref(),
-            &RenderOptions { spp: Some(1), ..options.clone() },
-            &never,
-        )
-    });
-    let (_, plain) = pool.install(|| render::render(&scene, integrator.as_ref(), &options, &never));
+    pool.install(|| integrator.render(&scene, &RenderOptions { spp: Some(1), ..options.clone() }, &never));
+    let plain = pool.install(|| integrator.render(&scene, &options, &never)).stats;
     let clock = Arc::new(crate::accel::timed::QueryClock::default());
     scene.replace_accel(|inner| Box::new(crate::accel::timed::TimedQuery::new(inner, clock.clone())));
-    let (_, inst) = pool.install(|| render::render(&scene, integrator.as_ref(), &options, &never));
+    let inst = pool.install(|| integrator.render(&scene, &options, &never)).stats;
     let query_secs = clock.corrected_seconds();
     let busy = inst.elapsed.as_secs_f64() * threads as f64;
     let secs = plain.elapsed.as_secs_f64().max(1e-9);
@@ -391,5 +386,6 @@ pub fn render_scene_film(
     );
     let options = RenderOptions { spp: Some(spp), time_limit: None, seed, progress: false };
     let never = AtomicBool::new(false);
-    render::render(scene, integrator.as_ref(), &options, &never)
+    let output = integrator.render(scene, &options, &never);
+    (output.film, output.stats)
 }

@@ -7,9 +7,11 @@ mod path;
 pub use path::PathTracer;
 
 use crate::geometry::Ray;
+use crate::render::{Film, RenderOptions, RenderStats, Splat};
 use crate::sampling::Sampler;
 use crate::scene::Scene;
 use crate::spectrum::Spectrum;
+use std::sync::atomic::AtomicBool;
 
 /// Per-sample counters an integrator may fill (summed over the render for reports).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -24,12 +26,66 @@ impl std::ops::AddAssign for SampleCounters {
     }
 }
 
-/// An integrator that estimates radiance along camera rays independently per sample.
+/// What one camera sample produces besides the radiance at its own pixel.
+#[derive(Debug, Default)]
+pub struct SampleOutput {
+    pub counters: SampleCounters,
+    /// Contributions to other pixels (light tracing); the render loop scales them by 1/spp.
+    pub splats: Vec<Splat>,
+    /// Values for the integrator's extra layers at this sample's own pixel.
+    pub layer_values: Vec<(u16, Spectrum)>,
+}
+
+/// An integrator that estimates radiance along camera rays independently per sample; the shared render
+/// loop in `render` drives it over the film.
 pub trait PixelIntegrator: Send + Sync {
     fn name(&self) -> &'static str;
 
     /// Radiance arriving along `-ray.dir` at the camera, estimated with the random stream `sampler`.
-    fn li(&self, scene: &Scene, ray: &Ray, sampler: &mut Sampler, counters: &mut SampleCounters) -> Spectrum;
+    fn li(&self, scene: &Scene, ray: &Ray, sampler: &mut Sampler, out: &mut SampleOutput) -> Spectrum;
+
+    /// Whether `li` emits splats (light tracing); the render loop then keeps passes short so the
+    /// per-pass splat lists stay small, and never keeps a partial pass.
+    fn splats(&self) -> bool {
+        false
+    }
+
+    /// Names of extra film layers (indices in `SampleOutput::layer_values` and `Splat::layer` follow
+    /// this order).
+    fn layers(&self) -> Vec<String> {
+        Vec::new()
+    }
+}
+
+/// The finished result of a render.
+#[derive(Debug)]
+pub struct RenderOutput {
+    pub film: Film,
+    pub stats: RenderStats,
+    /// Integrator-specific statistics for the output's metadata (e.g. Metropolis acceptance rates).
+    pub metadata: Vec<(String, String)>,
+}
+
+/// Any rendering technique: pixel integrators run in the shared tile loop, Metropolis methods run
+/// their chains. Progress, time budgets, cancellation and snapshots come through `RenderOptions`.
+pub trait Integrator: Send + Sync {
+    fn name(&self) -> &'static str;
+
+    fn render(&self, scene: &Scene, options: &RenderOptions, cancel: &AtomicBool) -> RenderOutput;
+}
+
+/// Runs a pixel integrator in the shared render loop.
+pub struct TiledRenderer(pub Box<dyn PixelIntegrator>);
+
+impl Integrator for TiledRenderer {
+    fn name(&self) -> &'static str {
+        self.0.name()
+    }
+
+    fn render(&self, scene: &Scene, options: &RenderOptions, cancel: &AtomicBool) -> RenderOutput {
+        let (film, stats) = crate::render::render(scene, self.0.as_ref(), options, cancel);
+        RenderOutput { film, stats, metadata: Vec::new() }
+    }
 }
 
 /// Path-length limits in Mitsuba 3's meaning (see `IntegratorSpec`).
@@ -66,9 +122,9 @@ impl IntegratorKind {
     }
 }
 
-/// Builds a pixel integrator.
-pub fn make(kind: IntegratorKind, limits: DepthLimits, hide_emitters: bool) -> Box<dyn PixelIntegrator> {
+/// Builds an integrator.
+pub fn make(kind: IntegratorKind, limits: DepthLimits, hide_emitters: bool) -> Box<dyn Integrator> {
     match kind {
-        IntegratorKind::Path => Box::new(PathTracer { limits, hide_emitters }),
+        IntegratorKind::Path => Box::new(TiledRenderer(Box::new(PathTracer { limits, hide_emitters }))),
     }
 }

@@ -2,7 +2,7 @@
 //! (power heuristic, Veach 1997 §9.2) between light sampling and BSDF sampling, and Russian roulette
 //! on throughput·η² as Mitsuba 3's `path` does, so the two renderers agree on every scene.
 
-use super::{DepthLimits, PixelIntegrator, SampleCounters};
+use super::{DepthLimits, PixelIntegrator, SampleCounters, SampleOutput};
 use crate::bsdf::{BsdfContext, TransportMode};
 use crate::geometry::{Ray, Vec3};
 use crate::sampling::{power_heuristic, Sampler};
@@ -83,13 +83,8 @@ impl PixelIntegrator for PathTracer {
         "pt"
     }
 
-    fn li(
-        &self,
-        scene: &Scene,
-        camera_ray: &Ray,
-        sampler: &mut Sampler,
-        counters: &mut SampleCounters,
-    ) -> Spectrum {
+    fn li(&self, scene: &Scene, camera_ray: &Ray, sampler: &mut Sampler, out: &mut SampleOutput) -> Spectrum {
+        let counters = &mut out.counters;
         let mut radiance = Spectrum::ZERO;
         let mut throughput = Spectrum::ONE;
         // Accumulated relative IOR: Russian roulette judges throughput·η² so refraction into a denser

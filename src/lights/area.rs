@@ -24,6 +24,9 @@ pub struct AreaLight {
 /// A point on an emitter with what is needed to evaluate emission there.
 #[derive(Clone, Copy, Debug)]
 pub struct SurfacePoint {
+    /// Triangle of the emitting mesh and barycentrics (b1, b2) in it.
+    pub prim: usize,
+    pub bary: Vec2,
     pub p: Vec3,
     pub ng: Vec3,
     pub ns: Vec3,
@@ -81,7 +84,7 @@ impl AreaLight {
             Some(t) => t[i0] * b0 + t[i1] * b.x + t[i2] * b.y,
             None => b,
         };
-        SurfacePoint { p, ng, ns, uv }
+        SurfacePoint { prim: tri, bary: b, p, ng, ns, uv }
     }
 
     pub fn sample_li(&self, p: Vec3, u: Vec2) -> Option<LightSample> {
@@ -118,7 +121,16 @@ impl AreaLight {
 
     /// The emitter-side description of a ray hit on this light's shape.
     pub fn surface_point(&self, si: &crate::scene::SurfaceInteraction) -> SurfacePoint {
-        SurfacePoint { p: si.p, ng: si.ng, ns: si.frame.n, uv: si.uv }
+        SurfacePoint { prim: si.prim, bary: si.bary, p: si.p, ng: si.ng, ns: si.frame.n, uv: si.uv }
+    }
+
+    /// Geometric normal turned to the emitting side (the side of the shading normal).
+    pub fn emitting_normal(sp: &SurfacePoint) -> Vec3 {
+        if sp.ng.dot(sp.ns) < 0.0 {
+            -sp.ng
+        } else {
+            sp.ng
+        }
     }
 
     pub fn power(&self) -> f32 {

@@ -34,6 +34,27 @@ pub struct LightSample {
     pub is_delta: bool,
 }
 
+/// A ray of emitted light, as light tracing starts it (Veach 1997, §10.3): a point with its area
+/// density and a direction with its solid-angle density.
+#[derive(Clone, Copy, Debug)]
+pub struct EmissionSample {
+    /// Start point; for infinite lights a point on a disk outside the scene facing `dir`.
+    pub p: Vec3,
+    /// Geometric normal on the emitting side (area lights); zero for point-like and infinite lights.
+    pub ng: Vec3,
+    /// Direction the light travels.
+    pub dir: Vec3,
+    /// Radiance (area, infinite) or intensity (point, spot) sent along `dir`.
+    pub le: Spectrum,
+    /// Density of `p`: per unit area (area lights; per unit disk area for infinite lights) or 1 for
+    /// delta positions.
+    pub pdf_pos: f32,
+    /// Solid-angle density of `dir`.
+    pub pdf_dir: f32,
+    /// For area lights: the triangle and surface coordinates of `p`.
+    pub surface: Option<SurfacePoint>,
+}
+
 #[derive(Debug)]
 pub enum Light {
     Area(AreaLight),
@@ -93,6 +114,95 @@ impl Light {
                 })
             }
             Light::Env(e) => e.sample_li(p, u, scene_radius),
+        }
+    }
+
+    /// Samples an emitted ray: `u_pos` picks the point, `u_dir` the direction. `centre` and
+    /// `scene_radius` bound the scene (for the disk that infinite lights start from).
+    pub fn sample_le(
+        &self,
+        u_pos: Vec2,
+        u_dir: Vec2,
+        centre: Vec3,
+        scene_radius: f32,
+    ) -> Option<EmissionSample> {
+        use crate::sampling::{
+            square_to_cosine_hemisphere, square_to_uniform_disk_concentric, square_to_uniform_sphere,
+            uniform_sphere_pdf,
+        };
+        let sample = match self {
+            Light::Area(a) => {
+                let sp = a.sample_point(u_pos);
+                let n = AreaLight::emitting_normal(&sp);
+                let local = square_to_cosine_hemisphere(u_dir);
+                let dir = crate::geometry::Frame::from_normal(n).to_world(local);
+                let le = a.emitted(&sp, dir);
+                EmissionSample {
+                    p: sp.p,
+                    ng: n,
+                    dir,
+                    le,
+                    pdf_pos: a.pdf_area(),
+                    pdf_dir: local.z.max(0.0) * std::f32::consts::FRAC_1_PI,
+                    surface: Some(sp),
+                }
+            }
+            Light::Point(l) => EmissionSample {
+                p: l.position,
+                ng: Vec3::ZERO,
+                dir: square_to_uniform_sphere(u_dir),
+                le: l.intensity,
+                pdf_pos: 1.0,
+                pdf_dir: uniform_sphere_pdf(),
+                surface: None,
+            },
+            Light::Spot(l) => {
+                let (dir, pdf_dir) = l.sample_direction(u_dir);
+                EmissionSample {
+                    p: l.position(),
+                    ng: Vec3::ZERO,
+                    dir,
+                    le: l.intensity * l.falloff(dir),
+                    pdf_pos: 1.0,
+                    pdf_dir,
+                    surface: None,
+                }
+            }
+            Light::Constant { .. } | Light::Env(_) => {
+                // The direction towards the light is drawn as next-event estimation draws it, so the
+                // two strategies share one density; the start point is uniform on a disk of the scene's
+                // radius, perpendicular to it, just outside the bounding sphere.
+                let ls = self.sample_li(centre, u_dir, scene_radius)?;
+                let frame = crate::geometry::Frame::from_normal(-ls.wi);
+                let d = square_to_uniform_disk_concentric(u_pos) * scene_radius;
+                let p = centre + ls.wi * scene_radius + frame.to_world(Vec3::new(d.x, d.y, 0.0));
+                EmissionSample {
+                    p,
+                    ng: Vec3::ZERO,
+                    dir: -ls.wi,
+                    le: ls.radiance,
+                    pdf_pos: 1.0 / (PI * scene_radius * scene_radius),
+                    pdf_dir: ls.pdf,
+                    surface: None,
+                }
+            }
+        };
+        let valid = sample.pdf_pos > 0.0
+            && sample.pdf_dir > 0.0
+            && sample.pdf_dir.is_finite()
+            && sample.le.is_finite()
+            && sample.le.max_element() > 0.0;
+        valid.then_some(sample)
+    }
+
+    /// Solid-angle density with which `sample_le` emits along `dir` from a point with emitting-side
+    /// normal `n` (area lights) — for infinite lights `dir` is the direction of travel.
+    pub fn pdf_le_dir(&self, n: Vec3, dir: Vec3) -> f32 {
+        match self {
+            Light::Area(_) => n.dot(dir).max(0.0) * std::f32::consts::FRAC_1_PI,
+            Light::Point(_) => crate::sampling::uniform_sphere_pdf(),
+            Light::Spot(l) => l.pdf_direction(dir),
+            Light::Constant { .. } | Light::Env(_) => self.pdf_infinite(-dir),
         }
     }
 

@@ -74,6 +74,25 @@ impl SpotLight {
         })
     }
 
+    /// Samples an emission direction uniformly inside the cut-off cone: (direction, solid-angle pdf).
+    pub fn sample_direction(&self, u: glam::Vec2) -> (Vec3, f32) {
+        let cos_max = self.cutoff.cos();
+        let local = crate::sampling::square_to_uniform_cone(u, cos_max);
+        let dir = self.to_world.vector(local).normalize_or_zero();
+        (dir, crate::sampling::uniform_cone_pdf(cos_max))
+    }
+
+    /// Density of `sample_direction` producing `dir`.
+    pub fn pdf_direction(&self, dir: Vec3) -> f32 {
+        let local = self.to_world.inverse.transform_vector3(dir).normalize_or_zero();
+        let cos_max = self.cutoff.cos();
+        if local.z >= cos_max {
+            crate::sampling::uniform_cone_pdf(cos_max)
+        } else {
+            0.0
+        }
+    }
+
     pub fn power(&self) -> f32 {
         let cone = 2.0 * PI * (1.0 - (0.5 * (self.cutoff + self.beam)).cos());
         cone * luminance(self.intensity)

@@ -5,9 +5,9 @@
 
 mod film;
 
-pub use film::Film;
+pub use film::{Film, Splat};
 
-use crate::integrators::{PixelIntegrator, SampleCounters};
+use crate::integrators::{PixelIntegrator, SampleCounters, SampleOutput};
 use crate::sampling::Sampler;
 use crate::scene::Scene;
 use crate::spectrum::Spectrum;
@@ -54,7 +54,13 @@ pub fn render(
     cancel: &AtomicBool,
 ) -> (Film, RenderStats) {
     let (width, height) = (scene.film.width, scene.film.height);
-    let mut film = Film::new(width, height);
+    let mut film = Film::with_filter(width, height, scene.film.rfilter);
+    for name in integrator.layers() {
+        film.add_layer(name);
+    }
+    let splats = integrator.splats();
+    // Splat lists are held for a whole pass; about a million per pass bounds their memory.
+    let max_pass = if splats { ((1usize << 20) / (width * height).max(1)).clamp(1, 64) as u32 } else { 64 };
     let tiles = tile_grid(width, height);
     let start = Instant::now();
     let target = match (options.spp, options.time_limit) {
@@ -76,6 +82,7 @@ pub fn render(
             }
             pass_size = pass_size.min(t - done_spp);
         }
+        pass_size = pass_size.min(max_pass);
         if cancel.load(Ordering::Relaxed) {
             stats.interrupted = true;
             break;
@@ -104,14 +111,20 @@ pub fn render(
                 Some(r)
             })
             .collect();
-        let mut complete = true;
-        for (tile, r) in tiles.iter().zip(results) {
-            match r {
-                Some(r) => {
-                    film.add_tile((tile.x, tile.y, tile.w, tile.h), &r.sums, &r.squares, pass_size);
-                    stats.samples += r.added;
+        let complete = results.iter().all(Option::is_some);
+        // A partial pass is kept for pixel estimates (each pixel is its own mean), but not when samples
+        // splat: light paths of the missing tiles would be missing from every pixel's splat sum.
+        if complete || !splats {
+            for (tile, r) in tiles.iter().zip(results) {
+                let Some(r) = r else { continue };
+                film.add_tile((tile.x, tile.y, tile.w, tile.h), &r.sums, &r.squares, pass_size);
+                for &(layer, x, y, v) in &r.layer_values {
+                    film.add_layer_sample(layer, x, y, v);
                 }
-                None => complete = false,
+                for splat in &r.splats {
+                    film.add_splat(splat);
+                }
+                stats.samples += r.added;
             }
         }
         if !complete {
@@ -142,6 +155,8 @@ pub fn render(
         pb.finish_and_clear();
     }
     stats.min_spp = done_spp;
+    // One light path per camera sample: each pixel's splat sum estimates its value times spp.
+    film.splat_scale = if done_spp > 0 { 1.0 / done_spp as f64 } else { 0.0 };
     stats.invalid_samples = invalid.load(Ordering::Relaxed);
     stats.rays = rays.load(Ordering::Relaxed);
     stats.elapsed = start.elapsed();
@@ -173,6 +188,9 @@ struct TileResult {
     added: u64,
     invalid: u64,
     counters: SampleCounters,
+    splats: Vec<Splat>,
+    /// (layer, x, y, value) at the sample's own pixel.
+    layer_values: Vec<(u16, usize, usize, Spectrum)>,
 }
 
 fn render_tile(
@@ -186,7 +204,9 @@ fn render_tile(
 ) -> TileResult {
     let mut sums = vec![[0.0f64; 3]; tile.w * tile.h];
     let mut squares = vec![[0.0f64; 3]; tile.w * tile.h];
-    let mut counters = SampleCounters::default();
+    let mut out = SampleOutput::default();
+    let mut splats = Vec::new();
+    let mut layer_values = Vec::new();
     let (mut added, mut invalid) = (0u64, 0u64);
     for py in 0..tile.h {
         for px in 0..tile.w {
@@ -198,8 +218,17 @@ fn render_tile(
                 let mut sampler = Sampler::new(seed, pixel_index, s as u64);
                 let pos = film_position(scene, x, y, &mut sampler);
                 let ray = scene.camera.generate_ray(pos);
-                let l: Spectrum = integrator.li(scene, &ray, &mut sampler, &mut counters);
-                if l.is_finite() && l.min_element() >= 0.0 {
+                out.splats.clear();
+                out.layer_values.clear();
+                let l: Spectrum = integrator.li(scene, &ray, &mut sampler, &mut out);
+                let valid = |v: Spectrum| v.is_finite() && v.min_element() >= 0.0;
+                // A sample's estimates are kept or dropped together: its strategies' MIS weights assume all of them.
+                let all_valid = valid(l)
+                    && out.splats.iter().all(|s| valid(s.value))
+                    && out.layer_values.iter().all(|&(_, v)| valid(v));
+                if all_valid {
+                    splats.extend_from_slice(&out.splats);
+                    layer_values.extend(out.layer_values.iter().map(|&(layer, v)| (layer, x, y, v)));
                     for (c, v) in [l.x, l.y, l.z].into_iter().enumerate() {
                         acc[c] += v as f64;
                         acc2[c] += v as f64 * v as f64;
@@ -213,7 +242,7 @@ fn render_tile(
             }
         }
     }
-    TileResult { sums, squares, added, invalid, counters }
+    TileResult { sums, squares, added, invalid, counters: out.counters, splats, layer_values }
 }
 
 /// A film position for pixel (x, y) drawn from the reconstruction filter around the pixel centre,

@@ -21,6 +21,32 @@ pub fn mix64(mut z: u64) -> u64 {
     z ^ (z >> 31)
 }
 
+/// Where a sampling routine takes its uniform numbers from: an independent stream (`Sampler`) or a
+/// Metropolis chain's primary-sample vector, which replays and perturbs them.
+pub trait SampleSource {
+    fn next_1d(&mut self) -> f32;
+
+    fn next_2d(&mut self) -> Vec2 {
+        let x = self.next_1d();
+        Vec2::new(x, self.next_1d())
+    }
+
+    /// Switches to sub-stream `index` (camera, light, connection), so that a change in how many numbers
+    /// one part consumes does not shift the numbers the others see (Kelemen et al. 2002 with BDPT, as
+    /// in pbrt-v3's MLT). Independent streams ignore it.
+    fn start_stream(&mut self, _index: usize) {}
+}
+
+impl SampleSource for Sampler {
+    fn next_1d(&mut self) -> f32 {
+        Sampler::next_1d(self)
+    }
+
+    fn next_2d(&mut self) -> Vec2 {
+        Sampler::next_2d(self)
+    }
+}
+
 /// The random stream of one sample, one chain or one work item.
 #[derive(Clone, Debug)]
 pub struct Sampler {

@@ -9,7 +9,7 @@ pub mod shapes;
 pub mod xml;
 
 pub use error::{SceneError, SrcLoc};
-pub use interaction::SurfaceInteraction;
+pub use interaction::{surface_derivatives, SurfaceDerivatives, SurfaceInteraction};
 pub use props::{Prop, PropValue, Props};
 
 use crate::accel::{AccelKind, RayQuery};

@@ -114,6 +114,39 @@ impl PerspectiveCamera {
         Ray { origin: self.position(), dir, tmin: self.near_clip * len, tmax: self.far_clip * len }
     }
 
+    /// Unit viewing axis in world space (the camera's "normal" in the geometry term).
+    pub fn forward(&self) -> Vec3 {
+        self.to_world.vector(Vec3::Z).normalize()
+    }
+
+    /// Cosine between `dir` and the viewing axis, measured in camera space.
+    fn cos_theta(&self, dir: Vec3) -> f32 {
+        let local = self.to_world.inverse.transform_vector3(dir);
+        local.z / local.length()
+    }
+
+    /// Solid-angle density of the primary-ray direction `dir` when film positions are uniform over the
+    /// image: 1 / (A cos³θ), A the image-plane area at unit distance (Veach 1997, §10.3; pbrt's Pdf_We).
+    /// Bidirectional MIS compares every strategy against this density.
+    pub fn pdf_dir(&self, dir: Vec3) -> f32 {
+        let cos = self.cos_theta(dir);
+        if !(cos > 0.0) || self.film_position(dir).is_none() {
+            return 0.0;
+        }
+        1.0 / (4.0 * self.tan_half.x * self.tan_half.y * cos * cos * cos)
+    }
+
+    /// Sensor importance W(dir) = pdf_dir / cos θ, normalised so that a light path connected to the
+    /// pinhole estimates the whole image at once: splats of f/p then average to each pixel's value
+    /// when divided by the number of light paths per pixel.
+    pub fn importance(&self, dir: Vec3) -> f32 {
+        let cos = self.cos_theta(dir);
+        if !(cos > 0.0) {
+            return 0.0;
+        }
+        self.pdf_dir(dir) / cos
+    }
+
     /// Film position of a world-space direction leaving the pinhole, if it lands inside the image.
     pub fn film_position(&self, dir: Vec3) -> Option<Vec2> {
         let local = self.to_world.inverse.transform_vector3(dir);

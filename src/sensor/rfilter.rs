@@ -55,6 +55,20 @@ impl ReconstructionFilter {
         }
     }
 
+    /// The 1D filter profile at offset `x` from the pixel centre, up to a constant factor (zero outside
+    /// the support). Splatting divides by its integral over the image, so the scale cancels.
+    pub fn eval_1d(&self, x: f32) -> f32 {
+        let r = self.radius();
+        if !(x.abs() <= r) {
+            return 0.0;
+        }
+        match *self {
+            ReconstructionFilter::Box => 1.0,
+            ReconstructionFilter::Tent { radius } => (radius - x.abs()).max(0.0),
+            ReconstructionFilter::Gaussian { stddev } => (-0.5 * (x / stddev) * (x / stddev)).exp(),
+        }
+    }
+
     /// Samples an offset from the pixel centre, distributed as the (separable) filter.
     pub fn sample(&self, u: Vec2) -> Vec2 {
         Vec2::new(self.sample_1d(u.x), self.sample_1d(u.y))

@@ -1,0 +1,380 @@
+//! Path space (Veach 1997, ch. 8): a light path is a sequence of vertices x_0 … x_k from the sensor
+//! (x_0) to an emitter (x_k). One `Vertex` type serves bidirectional path tracing, every Metropolis
+//! mutation and the manifold walk: it carries the local geometry (position, normals, shading frame,
+//! surface derivatives), the scattering class, and the area-measure densities of being sampled from the
+//! camera side and from the light side, so any (s, t) strategy's density can be evaluated on a path.
+
+mod eval;
+pub mod walk;
+
+pub use eval::{mis_weight, MisHeuristic, PathPdfs, PathView};
+
+use crate::bsdf::{Bsdf, BsdfContext, TransportMode};
+use crate::geometry::{Frame, Vec2, Vec3};
+use crate::lights::{AreaLight, EmissionSample, Light, SurfacePoint};
+use crate::scene::{Scene, SurfaceDerivatives, SurfaceInteraction};
+use crate::spectrum::Spectrum;
+
+/// What a vertex lies on.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum VertexKind {
+    /// The pinhole (x_0).
+    Camera,
+    /// A scattering surface (possibly emitting: `light` is then set).
+    Surface,
+    /// A light source endpoint sampled on the light: area, point or spot.
+    Light,
+    /// An environment endpoint: only a direction. `ng` holds the direction light travels.
+    InfiniteLight,
+}
+
+/// How a vertex scatters, for the manifold walk and the Metropolis mutations. Glossy keeps its
+/// microfacet roughness α so a walk can size its steps and MEMLT can apply its threshold.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum ScatterClass {
+    Diffuse,
+    Glossy {
+        alpha: f32,
+    },
+    /// A Dirac BSDF (smooth conductor or dielectric): α = 0.
+    Specular,
+}
+
+impl ScatterClass {
+    /// The class of a BSDF from its smallest roughness over its lobes.
+    pub fn of(bsdf: &dyn Bsdf) -> ScatterClass {
+        let alpha = bsdf.roughness();
+        if alpha <= 0.0 {
+            ScatterClass::Specular
+        } else if alpha.is_finite() {
+            ScatterClass::Glossy { alpha }
+        } else {
+            ScatterClass::Diffuse
+        }
+    }
+}
+
+/// A path vertex. Directions and densities follow the path convention of `path`: `pdf_from_camera`
+/// is the area density of this vertex when the path is traced from the sensor (x_0 side), and
+/// `pdf_from_light` when traced from the emitter (x_k side). Zero marks "cannot be sampled so" (and,
+/// after a Dirac vertex, a density the MIS ratio treats as cancelling).
+#[derive(Clone, Copy, Debug)]
+pub struct Vertex {
+    pub kind: VertexKind,
+    pub p: Vec3,
+    /// Geometric normal (camera: the viewing axis; infinite light: the direction light travels; point
+    /// and spot lights: zero, meaning "no cosine").
+    pub ng: Vec3,
+    /// Shading frame (normal, tangent along ∂p/∂u).
+    pub frame: Frame,
+    pub uv: Vec2,
+    /// Surface parameterisation at `p` (zero for the camera and point-like lights).
+    pub derivatives: SurfaceDerivatives,
+    /// Shape and triangle the vertex lies on (`usize::MAX` when none).
+    pub shape: usize,
+    pub prim: usize,
+    /// Barycentrics in `prim`.
+    pub bary: Vec2,
+    /// Emitter at this vertex, if any (index into `Scene::lights`).
+    pub light: Option<usize>,
+    pub class: ScatterClass,
+    /// Reached or left through a Dirac lobe (or a Dirac light position): the vertex cannot be an
+    /// end of a connection edge.
+    pub delta: bool,
+    pub pdf_from_camera: f32,
+    pub pdf_from_light: f32,
+    /// Throughput of the sub-path up to and including the edge into this vertex: its contribution
+    /// divided by its density (Veach's α weights).
+    pub beta: Spectrum,
+}
+
+const NO_SHAPE: usize = usize::MAX;
+
+fn no_derivatives() -> SurfaceDerivatives {
+    SurfaceDerivatives {
+        dpdu: Vec3::ZERO,
+        dpdv: Vec3::ZERO,
+        dndu: Vec3::ZERO,
+        dndv: Vec3::ZERO,
+        from_uv: false,
+    }
+}
+
+impl Vertex {
+    /// The pinhole endpoint. Its position is a Dirac, so its density is 1 in the MIS ratios.
+    pub fn camera(scene: &Scene) -> Vertex {
+        let forward = scene.camera.forward();
+        Vertex {
+            kind: VertexKind::Camera,
+            p: scene.camera.position(),
+            ng: forward,
+            frame: Frame::from_normal(forward),
+            uv: Vec2::ZERO,
+            derivatives: no_derivatives(),
+            shape: NO_SHAPE,
+            prim: 0,
+            bary: Vec2::ZERO,
+            light: None,
+            class: ScatterClass::Diffuse,
+            delta: false,
+            pdf_from_camera: 1.0,
+            pdf_from_light: 0.0,
+            beta: Spectrum::ONE,
+        }
+    }
+
+    /// A scattering vertex at a ray hit.
+    pub fn surface(scene: &Scene, si: &SurfaceInteraction, beta: Spectrum) -> Vertex {
+        let shape = &scene.shapes[si.shape];
+        Vertex {
+            kind: VertexKind::Surface,
+            p: si.p,
+            ng: si.ng,
+            frame: si.frame,
+            uv: si.uv,
+            derivatives: si.derivatives(scene),
+            shape: si.shape,
+            prim: si.prim,
+            bary: si.bary,
+            light: shape.light,
+            class: ScatterClass::of(shape.bsdf.as_ref()),
+            delta: false,
+            pdf_from_camera: 0.0,
+            pdf_from_light: 0.0,
+            beta,
+        }
+    }
+
+    /// An emitter endpoint from an emission (or light-sampling) sample of light `light`.
+    pub fn light(scene: &Scene, light: usize, es: &EmissionSample, beta: Spectrum, pdf: f32) -> Vertex {
+        let l = &scene.lights[light];
+        let mut v = Vertex {
+            kind: if l.is_infinite() { VertexKind::InfiniteLight } else { VertexKind::Light },
+            p: es.p,
+            ng: if l.is_infinite() { es.dir } else { es.ng },
+            frame: Frame::from_normal(if l.is_infinite() {
+                es.dir
+            } else {
+                es.ng.try_normalize().unwrap_or(Vec3::Z)
+            }),
+            uv: Vec2::ZERO,
+            derivatives: no_derivatives(),
+            shape: NO_SHAPE,
+            prim: 0,
+            bary: Vec2::ZERO,
+            light: Some(light),
+            class: ScatterClass::Diffuse,
+            delta: l.is_delta(),
+            pdf_from_camera: 0.0,
+            pdf_from_light: pdf,
+            beta,
+        };
+        if let (Light::Area(a), Some(sp)) = (l, &es.surface) {
+            v.shape = a.shape;
+            v.prim = sp.prim;
+            v.bary = sp.bary;
+            v.uv = sp.uv;
+            v.ng = sp.ng;
+            v.derivatives = crate::scene::surface_derivatives(&a.mesh, sp.prim, sp.bary);
+            v.frame = Frame::from_normal_tangent(sp.ns, v.derivatives.dpdu);
+            v.class = ScatterClass::of(scene.shapes[a.shape].bsdf.as_ref());
+        }
+        v
+    }
+
+    /// An environment endpoint seen along `dir` from `from` (a camera path escaping the scene).
+    pub fn infinite(scene: &Scene, light: usize, from: Vec3, dir: Vec3) -> Vertex {
+        let es = EmissionSample {
+            p: from + dir * 2.0 * scene.radius(),
+            ng: Vec3::ZERO,
+            dir: -dir,
+            le: Spectrum::ZERO,
+            pdf_pos: 0.0,
+            pdf_dir: 0.0,
+            surface: None,
+        };
+        Vertex::light(scene, light, &es, Spectrum::ZERO, 0.0)
+    }
+
+    pub fn is_surface(&self) -> bool {
+        self.shape != NO_SHAPE
+    }
+
+    /// True for Dirac light positions (point, spot): they cannot be hit by a ray.
+    pub fn is_delta_light(&self, scene: &Scene) -> bool {
+        self.kind == VertexKind::Light && self.light.is_some_and(|l| scene.lights[l].is_delta())
+    }
+
+    /// True if this vertex can be the end of a connection edge: it has a non-Dirac way to scatter
+    /// (or it is an endpoint that is not itself a Dirac direction).
+    pub fn connectible(&self, scene: &Scene) -> bool {
+        match self.kind {
+            VertexKind::Camera | VertexKind::Light | VertexKind::InfiniteLight => true,
+            VertexKind::Surface => !self.delta && scene.shapes[self.shape].bsdf.lobes().has_smooth(),
+        }
+    }
+
+    pub fn bsdf<'a>(&self, scene: &'a Scene) -> Option<&'a dyn Bsdf> {
+        (self.kind == VertexKind::Surface).then(|| scene.shapes[self.shape].bsdf.as_ref())
+    }
+
+    /// Unit direction from this vertex towards `other` (for an infinite light: back along its travel).
+    pub fn direction_to(&self, other: &Vertex) -> Vec3 {
+        match (self.kind, other.kind) {
+            (_, VertexKind::InfiniteLight) => -other.ng,
+            (VertexKind::InfiniteLight, _) => self.ng,
+            _ => (other.p - self.p).normalize_or_zero(),
+        }
+    }
+
+    /// |cos| between this vertex's geometric normal and `w` (1 where there is no surface).
+    pub fn abs_cos(&self, w: Vec3) -> f32 {
+        if self.ng == Vec3::ZERO {
+            1.0
+        } else {
+            self.ng.dot(w).abs()
+        }
+    }
+
+    /// Converts a solid-angle density at this vertex towards `next` into an area density at `next`.
+    /// The camera and Dirac lights cannot be reached (0); an environment endpoint is measured by
+    /// direction, so the density stays in solid angle.
+    pub fn convert_density(&self, pdf_dir: f32, next: &Vertex, scene: &Scene) -> f32 {
+        match next.kind {
+            VertexKind::Camera => 0.0,
+            VertexKind::InfiniteLight => pdf_dir,
+            VertexKind::Light if next.is_delta_light(scene) => 0.0,
+            _ => {
+                let d = next.p - self.p;
+                let dist2 = d.length_squared();
+                if !(dist2 > 0.0) {
+                    return 0.0;
+                }
+                pdf_dir * next.abs_cos(d / dist2.sqrt()) / dist2
+            }
+        }
+    }
+
+    /// The BSDF at this vertex, f(wi, wo) for transport `mode`, with Veach's shading-normal correction
+    /// for importance transport; no cosine.
+    pub fn eval_bsdf(&self, scene: &Scene, wi: Vec3, wo: Vec3, mode: TransportMode) -> Spectrum {
+        let Some(bsdf) = self.bsdf(scene) else { return Spectrum::ZERO };
+        let ctx = BsdfContext { mode, uv: self.uv };
+        let f = bsdf.eval(&ctx, self.frame.to_local(wi), self.frame.to_local(wo));
+        f * crate::bsdf::shading_normal_correction(mode, wi, wo, self.ng, self.frame.n)
+    }
+
+    /// Solid-angle density of the BSDF sampling `wo` given `wi` at this vertex (0 at Dirac vertices).
+    pub fn pdf_bsdf(&self, scene: &Scene, wi: Vec3, wo: Vec3, mode: TransportMode) -> f32 {
+        match self.bsdf(scene) {
+            Some(bsdf) if !self.delta => {
+                bsdf.pdf(&BsdfContext { mode, uv: self.uv }, self.frame.to_local(wi), self.frame.to_local(wo))
+            }
+            _ => 0.0,
+        }
+    }
+
+    /// The scattering factor of an inner vertex in the area-measure contribution f(X): the radiance BSDF
+    /// for light arriving from `to_light` and leaving towards `to_camera`, times |n_s·ω_l| / |n_g·ω_l|
+    /// (the geometric cosine of that edge is in the geometry term).
+    pub fn scatter_factor(&self, scene: &Scene, to_camera: Vec3, to_light: Vec3) -> Spectrum {
+        let cos_g = self.ng.dot(to_light).abs();
+        if !(cos_g > 0.0) {
+            return Spectrum::ZERO;
+        }
+        let f = self.eval_bsdf(scene, to_camera, to_light, TransportMode::Radiance);
+        f * (self.frame.n.dot(to_light).abs() / cos_g)
+    }
+
+    /// Radiance (or intensity) this vertex emits towards `w` (unit, leaving the vertex).
+    pub fn emitted(&self, scene: &Scene, w: Vec3) -> Spectrum {
+        let Some(li) = self.light else { return Spectrum::ZERO };
+        match &scene.lights[li] {
+            Light::Area(a) => {
+                let sp = SurfacePoint {
+                    prim: self.prim,
+                    bary: self.bary,
+                    p: self.p,
+                    ng: self.ng,
+                    ns: self.frame.n,
+                    uv: self.uv,
+                };
+                a.emitted(&sp, w)
+            }
+            Light::Point(l) => l.intensity,
+            Light::Spot(l) => l.intensity * l.falloff(w),
+            l @ (Light::Constant { .. } | Light::Env(_)) => l.eval_infinite(-self.ng),
+        }
+    }
+
+    /// Density with which light sampling (and emission sampling) picks this emitter endpoint: light
+    /// choice times the position density (area lights: per area; infinite lights: the direction's
+    /// solid-angle density; Dirac positions: 1).
+    pub fn pdf_light_origin(&self, scene: &Scene) -> f32 {
+        let Some(li) = self.light else { return 0.0 };
+        let pmf = scene.light_selector.pmf(li);
+        pmf * match &scene.lights[li] {
+            Light::Area(a) => a.pdf_area(),
+            Light::Point(_) | Light::Spot(_) => 1.0,
+            l @ (Light::Constant { .. } | Light::Env(_)) => l.pdf_infinite(-self.ng),
+        }
+    }
+
+    /// Area density at `next` of emission from this emitter endpoint towards it.
+    pub fn pdf_light_emission(&self, scene: &Scene, next: &Vertex) -> f32 {
+        let Some(li) = self.light else { return 0.0 };
+        let light = &scene.lights[li];
+        if light.is_infinite() {
+            // Start points are uniform on a disk of the scene's radius facing the direction, so the
+            // density of hitting `next` is the disk density times the cosine there.
+            let r = scene.radius();
+            return next.abs_cos(self.ng) / (std::f32::consts::PI * r * r);
+        }
+        let w = self.direction_to(next);
+        let n = match light {
+            Light::Area(_) => {
+                let sp = SurfacePoint {
+                    prim: self.prim,
+                    bary: self.bary,
+                    p: self.p,
+                    ng: self.ng,
+                    ns: self.frame.n,
+                    uv: self.uv,
+                };
+                AreaLight::emitting_normal(&sp)
+            }
+            _ => Vec3::ZERO,
+        };
+        self.convert_density(light.pdf_le_dir(n, w), next, scene)
+    }
+}
+
+/// The geometry term between two vertices without visibility: |cos_a| |cos_b| / d², with the
+/// conventions of `Vertex::abs_cos` (no cosine at point-like lights) and an environment endpoint
+/// contributing only the cosine at the other end.
+pub fn geometry_term(a: &Vertex, b: &Vertex) -> f32 {
+    match (a.kind, b.kind) {
+        (VertexKind::InfiniteLight, _) => b.abs_cos(a.ng),
+        (_, VertexKind::InfiniteLight) => a.abs_cos(b.ng),
+        _ => {
+            let d = b.p - a.p;
+            let dist2 = d.length_squared();
+            if !(dist2 > 0.0) {
+                return 0.0;
+            }
+            let w = d / dist2.sqrt();
+            a.abs_cos(w) * b.abs_cos(w) / dist2
+        }
+    }
+}
+
+/// True if nothing blocks the edge between two vertices.
+pub fn visible(scene: &Scene, a: &Vertex, b: &Vertex) -> bool {
+    let offset_normal = |v: &Vertex| if v.is_surface() { v.ng } else { Vec3::ZERO };
+    match (a.kind, b.kind) {
+        (VertexKind::InfiniteLight, VertexKind::InfiniteLight) => false,
+        (_, VertexKind::InfiniteLight) => !scene.occluded_dir(a.p, offset_normal(a), -b.ng),
+        (VertexKind::InfiniteLight, _) => !scene.occluded_dir(b.p, offset_normal(b), a.ng),
+        _ => !scene.occluded_between(a.p, offset_normal(a), b.p, offset_normal(b)),
+    }
+}
