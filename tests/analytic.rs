@@ -9,7 +9,7 @@ use hslt::image::ImageBuf;
 use hslt::integrators::IntegratorKind;
 use std::path::Path;
 
-const INTEGRATORS: &[IntegratorKind] = &[IntegratorKind::Path];
+const INTEGRATORS: &[IntegratorKind] = &IntegratorKind::ALL;
 
 /// Mean and standard error of the mean over all channels of all pixels.
 fn mean_and_stderr(img: &ImageBuf) -> (f64, f64) {

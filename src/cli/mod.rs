@@ -6,6 +6,7 @@ pub mod assets;
 use crate::accel::AccelKind;
 use crate::image::{ImageBuf, Metadata};
 use crate::integrators::{self, DepthLimits, IntegratorKind};
+use crate::path::MisHeuristic;
 use crate::render::{self, RenderOptions, RenderStats};
 use crate::scene::{LoadOptions, Scene};
 use anyhow::{bail, Context};
@@ -80,9 +81,16 @@ pub struct RenderArgs {
     /// Output image(s); the format follows the extension (.exr, .png, .jpg, .tif, .hdr). Repeatable.
     #[arg(short, long = "output", required = true)]
     pub output: Vec<PathBuf>,
-    /// Integrator (overrides the scene's <integrator>): pt.
+    /// Integrator (overrides the scene's <integrator>): pt, bdpt.
     #[arg(long)]
     pub integrator: Option<String>,
+    /// BDPT: also write each strategy's weighted contribution, for path depths up to N, as extra EXR
+    /// layers named d<depth>_s<s>_t<t> (Veach's and pbrt's per-strategy figures).
+    #[arg(long, value_name = "N")]
+    pub bdpt_strategies: Option<u32>,
+    /// BDPT: multiple-importance heuristic.
+    #[arg(long, default_value = "power", value_parser = ["power", "balance"])]
+    pub mis: String,
     /// Samples per pixel (overrides the scene's sampler); with --time, a cap.
     #[arg(long)]
     pub spp: Option<u32>,
@@ -203,7 +211,18 @@ fn run_render(args: RenderArgs) -> anyhow::Result<i32> {
     if limits.max_depth == 0 || limits.max_depth < -1 {
         bail!("--max-depth must be -1 (unbounded) or at least 1");
     }
-    let integrator = integrators::make(kind, limits, scene.integrator.hide_emitters);
+    let mut settings = integrators::IntegratorSettings::new(limits, scene.integrator.hide_emitters);
+    settings.bdpt_strategies = args.bdpt_strategies;
+    settings.mis = if args.mis == "balance" { MisHeuristic::Balance } else { MisHeuristic::Power };
+    if args.bdpt_strategies.is_some() {
+        if kind != IntegratorKind::Bdpt {
+            bail!("--bdpt-strategies needs --integrator bdpt");
+        }
+        if args.output.iter().any(|o| o.extension().and_then(|e| e.to_str()) != Some("exr")) {
+            bail!("--bdpt-strategies writes EXR layers: every output must end in .exr");
+        }
+    }
+    let integrator = integrators::make_with(kind, &settings);
     let options = RenderOptions {
         spp: args.spp.or(if args.time.is_some() { None } else { Some(scene.spp) }),
         time_limit: args.time.map(Duration::from_secs_f64),
@@ -224,9 +243,16 @@ fn run_render(args: RenderArgs) -> anyhow::Result<i32> {
     let image = output.film.to_image();
     let mut meta = metadata(&scene, kind.name(), &options, limits, threads, &stats);
     meta.extend(output.metadata);
+    let layers = output.film.layer_images();
     for out in &args.output {
-        crate::image::write_image(out, &image, &meta)
-            .with_context(|| format!("cannot write {}", out.display()))?;
+        if layers.is_empty() {
+            crate::image::write_image(out, &image, &meta)
+        } else {
+            let mut all: Vec<(&str, &ImageBuf)> = vec![("combined", &image)];
+            all.extend(layers.iter().map(|(name, img)| (name.as_str(), img)));
+            crate::image::write_exr_layers(out, &all, &meta).map(|_| ())
+        }
+        .with_context(|| format!("cannot write {}", out.display()))?;
     }
     if !args.quiet {
         print_summary(&args.output, &stats, threads);

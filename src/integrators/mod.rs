@@ -2,8 +2,10 @@
 //! Pixel integrators estimate the measurement of one camera sample; the render loop in `render`
 //! drives them over the film, so every integrator gets progress, time budgets and interruption for free.
 
+pub mod bdpt;
 mod path;
 
+pub use bdpt::Bdpt;
 pub use path::PathTracer;
 
 use crate::geometry::Ray;
@@ -101,6 +103,7 @@ pub struct DepthLimits {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum IntegratorKind {
     Path,
+    Bdpt,
 }
 
 impl IntegratorKind {
@@ -108,23 +111,61 @@ impl IntegratorKind {
     pub fn parse(name: &str) -> Result<IntegratorKind, String> {
         match name {
             "pt" | "path" => Ok(IntegratorKind::Path),
-            "bdpt" | "pssmlt" | "mlt" | "hslt" | "hslt+mlt" | "memlt" => {
-                Err(format!("integrator '{name}' is not available in this build yet (available: pt)"))
-            }
-            other => Err(format!("unknown integrator '{other}' (available: pt)")),
+            "bdpt" => Ok(IntegratorKind::Bdpt),
+            "pssmlt" | "mlt" | "hslt" | "hslt+mlt" | "memlt" => Err(format!(
+                "integrator '{name}' is not available in this build yet (available: {})",
+                IntegratorKind::AVAILABLE
+            )),
+            other => Err(format!("unknown integrator '{other}' (available: {})", IntegratorKind::AVAILABLE)),
         }
     }
+
+    /// Names `parse` accepts, for messages.
+    pub const AVAILABLE: &'static str = "pt, bdpt";
+
+    /// Every integrator, in the order reports list them.
+    pub const ALL: [IntegratorKind; 2] = [IntegratorKind::Path, IntegratorKind::Bdpt];
 
     pub fn name(self) -> &'static str {
         match self {
             IntegratorKind::Path => "pt",
+            IntegratorKind::Bdpt => "bdpt",
         }
     }
 }
 
-/// Builds an integrator.
+/// Everything that configures an integrator, from the scene's `<integrator>` and the command line.
+#[derive(Clone, Debug)]
+pub struct IntegratorSettings {
+    pub limits: DepthLimits,
+    pub hide_emitters: bool,
+    /// BDPT: write per-strategy layers for path depths up to this.
+    pub bdpt_strategies: Option<u32>,
+    /// BDPT: MIS heuristic.
+    pub mis: crate::path::MisHeuristic,
+}
+
+impl IntegratorSettings {
+    pub fn new(limits: DepthLimits, hide_emitters: bool) -> IntegratorSettings {
+        IntegratorSettings { limits, hide_emitters, bdpt_strategies: None, mis: crate::path::MisHeuristic::Power }
+    }
+}
+
+/// Builds an integrator with default settings besides the depth limits.
 pub fn make(kind: IntegratorKind, limits: DepthLimits, hide_emitters: bool) -> Box<dyn Integrator> {
+    make_with(kind, &IntegratorSettings::new(limits, hide_emitters))
+}
+
+/// Builds an integrator.
+pub fn make_with(kind: IntegratorKind, settings: &IntegratorSettings) -> Box<dyn Integrator> {
+    let (limits, hide_emitters) = (settings.limits, settings.hide_emitters);
     match kind {
         IntegratorKind::Path => Box::new(TiledRenderer(Box::new(PathTracer { limits, hide_emitters }))),
+        IntegratorKind::Bdpt => {
+            let mut bdpt = Bdpt::new(limits, hide_emitters);
+            bdpt.strategy_layers = settings.bdpt_strategies;
+            bdpt.heuristic = settings.mis;
+            Box::new(TiledRenderer(Box::new(bdpt)))
+        }
     }
 }

@@ -34,8 +34,8 @@ fn set_reverse(v: &mut Vertex, mode: TransportMode, pdf: f32) {
 }
 
 /// Extends `path` (holding at least its endpoint) along `ray`, which leaves the last vertex with
-/// throughput `beta`. Returns the direction of the last ray if it escaped the scene, so a camera walk
-/// can meet environment lights.
+/// throughput `beta`. Returns the direction and throughput of the last ray if it escaped the scene,
+/// so a camera walk can meet environment lights.
 #[allow(clippy::too_many_arguments)] // the walk's whole state; a struct would only rename it
 pub fn extend<S: SampleSource + ?Sized>(
     scene: &Scene,
@@ -46,13 +46,13 @@ pub fn extend<S: SampleSource + ?Sized>(
     limits: WalkLimits,
     sampler: &mut S,
     counters: &mut SampleCounters,
-) -> Option<Vec3> {
+) -> Option<(Vec3, Spectrum)> {
     // Relative IOR accumulated along the walk, so roulette judges radiance-like throughput.
     let mut eta_scale = 1.0f32;
     while path.len() < limits.max_vertices {
         counters.rays += 1;
         let Some(si) = scene.intersect(&ray) else {
-            return Some(ray.dir);
+            return Some((ray.dir, beta));
         };
         let prev_index = path.len() - 1;
         let mut v = Vertex::surface(scene, &si, beta);
