@@ -21,6 +21,9 @@ mi.set_variant("scalar_rgb")
 REFERENCES = {
     "cornell-box": ("scenes/cornell-box/scene.xml", {"resx": "64", "resy": "64"}, 4096),
     "materials": ("scenes/materials/scene.xml", {"resx": "64", "resy": "48"}, 8192),
+    # Mitsuba's light tracer (`ptracer`) resolves the caustic through the glass ball far better than its
+    # path tracer; BDPT is compared against it. Samples are light paths per pixel here.
+    "caustic": ("scenes/caustic/scene.xml", {"resx": "32", "resy": "32", "integrator": "ptracer"}, 65536),
 }
 
 OUT_DIR = "tests/references/mitsuba"

@@ -1,4 +1,4 @@
-//! The path tracer against images made by other renderers: Mitsuba 3 references of our bundled
+//! The path tracer and BDPT against images made by other renderers: Mitsuba 3 references of our bundled
 //! scenes (made by scripts/make-mitsuba-references.py, same XML) and the Tungsten references that
 //! ship with the shared public scenes. See tests/common for the statistical test.
 //!
@@ -159,4 +159,103 @@ fn all_shared_scenes_load_and_render() {
         let mean = img.data.iter().map(|&v| v as f64).sum::<f64>() / img.data.len() as f64;
         assert!(mean > 0.0 && mean.is_finite(), "{name}: mean {mean}");
     }
+}
+
+/// BDPT against a reference image, with variances from the spread of `RUNS` independent renders.
+const RUNS: u64 = 16;
+
+/// E[t²] for Student's t with RUNS − 1 degrees of freedom (the χ² mean with estimated variances), plus
+/// the same 0.5 margin the film-variance tests allow above their mean of 1.
+fn runs_threshold() -> f64 {
+    let dof = (RUNS - 1) as f64;
+    dof / (dof - 2.0) + 0.5
+}
+
+fn check_bdpt_against(
+    scene: &Path,
+    defines: &[(&str, &str)],
+    reference: &hslt::image::ImageBuf,
+    spp: u32,
+    block: (usize, usize),
+    ref_noise_ratio: f64,
+    model_tolerance: f64,
+) {
+    let s = load_scene(scene, defines).unwrap_or_else(|e| panic!("{}: {e:#}", scene.display()));
+    let (mean, var) = common::render_runs(&s, IntegratorKind::Bdpt, spp, RUNS, block);
+    let cmp =
+        common::compare(&mean, &var, reference, block, 0..mean.height, ref_noise_ratio, model_tolerance);
+    eprintln!(
+        "bdpt {}: flux ratio {:.4}, block relMSE {:.2e}, chi2/dof {:.2} over {} blocks (threshold {:.2})",
+        scene.display(),
+        cmp.flux_ratio,
+        cmp.block_rel_mse,
+        cmp.chi2_per_dof,
+        cmp.blocks,
+        runs_threshold()
+    );
+    assert!(
+        cmp.chi2_per_dof < runs_threshold(),
+        "bdpt {}: chi2/dof {:.2} (flux ratio {:.4})",
+        scene.display(),
+        cmp.chi2_per_dof,
+        cmp.flux_ratio
+    );
+    assert!(
+        (cmp.flux_ratio - 1.0).abs() < 0.02,
+        "bdpt {}: flux ratio {:.4}",
+        scene.display(),
+        cmp.flux_ratio
+    );
+}
+
+#[test]
+fn bdpt_cornell_box_matches_mitsuba() {
+    // 16 runs of 16 spp against Mitsuba's 4096-spp path tracer; BDPT's noise per sample is at most the
+    // path tracer's here, so the reference's variance is at most 256/4096 of ours.
+    let reference = read_image(&root().join("tests/references/mitsuba/cornell-box.exr"), false).unwrap();
+    check_bdpt_against(
+        &root().join("scenes/cornell-box/scene.xml"),
+        &[("resx", "64"), ("resy", "64")],
+        &reference,
+        16,
+        (4, 4),
+        256.0 / 4096.0,
+        0.003,
+    );
+}
+
+#[test]
+fn bdpt_materials_scene_matches_mitsuba() {
+    let reference = read_image(&root().join("tests/references/mitsuba/materials.exr"), false).unwrap();
+    check_bdpt_against(
+        &root().join("scenes/materials/scene.xml"),
+        &[("resx", "64"), ("resy", "48")],
+        &reference,
+        32,
+        (4, 4),
+        512.0 / 8192.0,
+        0.01,
+    );
+}
+
+#[test]
+fn bdpt_caustic_matches_mitsuba_light_tracer() {
+    // Mitsuba's `ptracer` (65536 light paths per pixel) resolves the glass ball's caustic; it cannot see
+    // the ball itself (light tracing never reaches the camera through a Dirac surface), so only the
+    // floor in front of the ball is compared: rows 20..32 hold the caustic and the ball's shadow.
+    // 2% allows for our tessellated sphere against Mitsuba's analytic one.
+    let reference = read_image(&root().join("tests/references/mitsuba/caustic.exr"), false).unwrap();
+    let scene = root().join("scenes/caustic/scene.xml");
+    let s = load_scene(&scene, &[("resx", "32"), ("resy", "32")]).unwrap();
+    let (mean, var) = common::render_runs(&s, IntegratorKind::Bdpt, 64, RUNS, (4, 4));
+    let cmp = common::compare(&mean, &var, &reference, (4, 4), 20..32, 0.05, 0.02);
+    eprintln!(
+        "bdpt caustic floor: flux ratio {:.4}, chi2/dof {:.2} over {} blocks (threshold {:.2})",
+        cmp.flux_ratio,
+        cmp.chi2_per_dof,
+        cmp.blocks,
+        runs_threshold()
+    );
+    assert!(cmp.chi2_per_dof < runs_threshold(), "caustic: chi2/dof {:.2}", cmp.chi2_per_dof);
+    assert!((cmp.flux_ratio - 1.0).abs() < 0.03, "caustic: flux ratio {:.4}", cmp.flux_ratio);
 }

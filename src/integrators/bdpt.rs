@@ -164,6 +164,7 @@ impl Bdpt {
                     env.pdf_from_camera =
                         PathView::density(scene, prev.as_ref(), &last, &env, TransportMode::Radiance);
                     camera.push(env);
+                    walk::update_reverse_density(scene, &mut camera, TransportMode::Radiance);
                     let with_env = Subpaths { camera, light: Vec::new(), escaped: None };
                     if let Some(c) = self.connect(scene, &with_env, 0, t, sampler, counters) {
                         out.push(c);
@@ -310,18 +311,24 @@ pub fn connection_pdfs(scene: &Scene, path: &PathView, t: usize) -> PathPdfs {
             pdfs.from_camera[t + 1] =
                 PathView::density(scene, Some(at(t - 1)), at(t), at(t + 1), TransportMode::Radiance);
         }
-        pdfs.from_light[t - 1] = PathView::density(scene, after(t), at(t), at(t - 1), TransportMode::Importance);
+        pdfs.from_light[t - 1] =
+            PathView::density(scene, after(t), at(t), at(t - 1), TransportMode::Importance);
     } else {
         pdfs.from_light[n - 1] = at(n - 1).pdf_light_origin(scene);
     }
     if t >= 2 {
-        pdfs.from_light[t - 2] = PathView::density(scene, after(t - 1), at(t - 1), at(t - 2), TransportMode::Importance);
+        pdfs.from_light[t - 2] =
+            PathView::density(scene, after(t - 1), at(t - 1), at(t - 2), TransportMode::Importance);
     }
     pdfs
 }
 
 /// A light endpoint for next-event connections (s = 1), with β = 1 / (its density).
-fn sample_light_vertex<S: SampleSource + ?Sized>(scene: &Scene, reference: Vec3, sampler: &mut S) -> Option<Vertex> {
+fn sample_light_vertex<S: SampleSource + ?Sized>(
+    scene: &Scene,
+    reference: Vec3,
+    sampler: &mut S,
+) -> Option<Vertex> {
     let u_light = sampler.next_1d();
     let u = sampler.next_2d();
     let (li, pmf, _) = scene.light_selector.sample(u_light)?;
@@ -341,7 +348,15 @@ fn sample_light_vertex<S: SampleSource + ?Sized>(scene: &Scene, reference: Vec3,
         }
         Light::Point(_) | Light::Spot(_) => {
             let ls = light.sample_li(reference, u, scene.radius())?;
-            EmissionSample { p: ls.p, ng: Vec3::ZERO, dir: Vec3::ZERO, le: Spectrum::ZERO, pdf_pos: 1.0, pdf_dir: 0.0, surface: None }
+            EmissionSample {
+                p: ls.p,
+                ng: Vec3::ZERO,
+                dir: Vec3::ZERO,
+                le: Spectrum::ZERO,
+                pdf_pos: 1.0,
+                pdf_dir: 0.0,
+                surface: None,
+            }
         }
         Light::Constant { .. } | Light::Env(_) => {
             let ls = light.sample_li(reference, u, scene.radius())?;

@@ -147,7 +147,12 @@ pub struct IntegratorSettings {
 
 impl IntegratorSettings {
     pub fn new(limits: DepthLimits, hide_emitters: bool) -> IntegratorSettings {
-        IntegratorSettings { limits, hide_emitters, bdpt_strategies: None, mis: crate::path::MisHeuristic::Power }
+        IntegratorSettings {
+            limits,
+            hide_emitters,
+            bdpt_strategies: None,
+            mis: crate::path::MisHeuristic::Power,
+        }
     }
 }
 

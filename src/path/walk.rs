@@ -33,6 +33,18 @@ fn set_reverse(v: &mut Vertex, mode: TransportMode, pdf: f32) {
     set_forward(v, mode.flip(), pdf);
 }
 
+/// Once the last vertex of `path` is known, the vertex two before it gets its density as seen from
+/// the other side (sampled from its successor, which was reached from the last vertex). Computed from
+/// the vertex positions, exactly as `PathView::pdfs` recomputes it.
+pub fn update_reverse_density(scene: &Scene, path: &mut [Vertex], mode: TransportMode) {
+    let n = path.len();
+    if n < 3 {
+        return;
+    }
+    let pdf = PathView::density(scene, Some(&path[n - 1]), &path[n - 2], &path[n - 3], mode.flip());
+    set_reverse(&mut path[n - 3], mode, pdf);
+}
+
 /// Extends `path` (holding at least its endpoint) along `ray`, which leaves the last vertex with
 /// throughput `beta`. Returns the direction and throughput of the last ray if it escaped the scene,
 /// so a camera walk can meet environment lights.
@@ -60,6 +72,7 @@ pub fn extend<S: SampleSource + ?Sized>(
         let pdf_fwd = PathView::density(scene, before.as_ref(), &path[prev_index], &v, mode);
         set_forward(&mut v, mode, pdf_fwd);
         path.push(v);
+        update_reverse_density(scene, path, mode);
         if path.len() >= limits.max_vertices {
             break;
         }
@@ -76,14 +89,10 @@ pub fn extend<S: SampleSource + ?Sized>(
         if !(bs.pdf > 0.0) || !weight.is_finite() || weight == Spectrum::ZERO {
             break;
         }
-        let cur = path.len() - 1;
         if bs.lobe.is_delta() {
             // Dirac lobes have no density to store; MIS treats both as cancelling (see `mis_weight`).
+            let cur = path.len() - 1;
             path[cur].delta = true;
-        } else {
-            let pdf_rev = bsdf.pdf(&BsdfContext { mode: mode.flip(), uv: si.uv }, bs.wo, wi_local);
-            let (vertex, prev) = (path[cur], &mut path[prev_index]);
-            set_reverse(prev, mode, vertex.convert_density(pdf_rev, prev, scene));
         }
         beta *= weight;
         if bs.lobe.contains(BsdfLobe::TRANSMISSION) {

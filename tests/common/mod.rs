@@ -104,3 +104,51 @@ pub fn compare(
         blocks: dof / 3,
     }
 }
+
+/// Renders `runs` independent images (seeds 1..=runs) of `spp` samples each and returns their mean
+/// and a per-pixel variance image whose block means give, for `block`, the variance of the block mean
+/// estimated from the spread between runs. Integrators that splat (BDPT, Metropolis) cannot report
+/// per-pixel variance from their film, and splats correlate neighbouring pixels, so the spread of
+/// whole-block means between runs is the honest measure. With `runs` runs the χ² terms follow a
+/// squared Student t with runs − 1 degrees of freedom: mean (runs − 1)/(runs − 3), not 1.
+pub fn render_runs(
+    scene: &hslt::scene::Scene,
+    kind: hslt::integrators::IntegratorKind,
+    spp: u32,
+    runs: u64,
+    block: (usize, usize),
+) -> (ImageBuf, ImageBuf) {
+    let images: Vec<ImageBuf> = (1..=runs)
+        .map(|seed| {
+            let (img, stats) = hslt::cli::render_scene(scene, kind, spp, seed);
+            assert_eq!(stats.invalid_samples, 0, "{}: NaN/Inf samples", kind.name());
+            img
+        })
+        .collect();
+    let (w, h) = (images[0].width, images[0].height);
+    let mut mean = ImageBuf::new(w, h, 3);
+    for img in &images {
+        for (m, v) in mean.data.iter_mut().zip(&img.data) {
+            *m += v / runs as f32;
+        }
+    }
+    let (bw, bh) = block;
+    let per_run: Vec<Vec<[f64; 3]>> = images.iter().map(|img| block_means(img, bw, bh)).collect();
+    let nx = w / bw;
+    let mut var_img = ImageBuf::new(w, h, 3);
+    for b in 0..per_run[0].len() {
+        for c in 0..3 {
+            let m = per_run.iter().map(|r| r[b][c]).sum::<f64>() / runs as f64;
+            let var_run = per_run.iter().map(|r| (r[b][c] - m).powi(2)).sum::<f64>() / (runs - 1) as f64;
+            // `compare` divides block-averaged pixel variances by the pixel count.
+            let pixel_value = var_run / runs as f64 * (bw * bh) as f64;
+            let (bx, by) = (b % nx, b / nx);
+            for y in by * bh..(by + 1) * bh {
+                for x in bx * bw..(bx + 1) * bw {
+                    var_img.data[(y * w + x) * 3 + c] = pixel_value as f32;
+                }
+            }
+        }
+    }
+    (mean, var_img)
+}
