@@ -48,6 +48,26 @@ pub enum BenchCommand {
     Pt(BenchArgs),
     /// Ray-query backends compared on the scene's ray sets and on a generated 1M-triangle scene.
     Rays(BenchRaysArgs),
+    /// Integrators side by side on one scene: samples/s, rays/s and rays per sample, one run each.
+    Integrators(BenchIntegratorsArgs),
+}
+
+#[derive(Args, Debug)]
+pub struct BenchIntegratorsArgs {
+    #[command(flatten)]
+    pub scene: SceneArgs,
+    /// Comma-separated integrators to measure.
+    #[arg(long, default_value = "pt,bdpt")]
+    pub integrators: String,
+    /// Samples per pixel for each measured run.
+    #[arg(long, default_value_t = 4)]
+    pub spp: u32,
+    /// Measure each integrator this many times, alternating, and report the median.
+    #[arg(long, default_value_t = 3)]
+    pub repeats: u32,
+    /// Worker threads (0 = all cores).
+    #[arg(long, default_value_t = 0)]
+    pub threads: usize,
 }
 
 #[derive(Args, Debug)]
@@ -153,6 +173,7 @@ pub fn run(cli: Cli) -> anyhow::Result<i32> {
         Command::Info(args) => run_info(args),
         Command::Bench(BenchCommand::Pt(args)) => run_bench(args),
         Command::Bench(BenchCommand::Rays(args)) => run_bench_rays(args),
+        Command::Bench(BenchCommand::Integrators(args)) => run_bench_integrators(args),
         Command::GenerateAssets(args) => assets::run(args),
     }
 }
@@ -371,6 +392,62 @@ fn run_bench(args: BenchArgs) -> anyhow::Result<i32> {
         100.0 * query_secs / busy.max(1e-9),
         clock.calls()
     );
+    Ok(0)
+}
+
+fn run_bench_integrators(args: BenchIntegratorsArgs) -> anyhow::Result<i32> {
+    let scene = load(&args.scene, AccelKind::Embree)?;
+    let pool = thread_pool(args.threads)?;
+    let limits = DepthLimits { max_depth: scene.integrator.max_depth, rr_depth: scene.integrator.rr_depth };
+    let kinds = args
+        .integrators
+        .split(',')
+        .map(|n| IntegratorKind::parse(n.trim()).map_err(anyhow::Error::msg))
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    let never = AtomicBool::new(false);
+    let options = RenderOptions { spp: Some(args.spp.max(1)), time_limit: None, seed: 1, progress: false };
+    let integrators: Vec<_> =
+        kinds.iter().map(|&k| integrators::make(k, limits, scene.integrator.hide_emitters)).collect();
+    // Warm up once each, then alternate the measured runs so load changes hit all integrators alike.
+    for integrator in &integrators {
+        pool.install(|| {
+            integrator.render(&scene, &RenderOptions { spp: Some(1), ..options.clone() }, &never)
+        });
+    }
+    let mut runs: Vec<Vec<RenderStats>> = vec![Vec::new(); kinds.len()];
+    for _ in 0..args.repeats.max(1) {
+        for (i, integrator) in integrators.iter().enumerate() {
+            runs[i].push(pool.install(|| integrator.render(&scene, &options, &never)).stats);
+        }
+    }
+    println!("scene      {}", scene.path.display());
+    println!("threads    {}", pool.current_num_threads());
+    println!(
+        "image      {} x {} at {} spp, median of {} alternating runs",
+        scene.film.width,
+        scene.film.height,
+        args.spp,
+        args.repeats.max(1)
+    );
+    println!(
+        "{:<10} {:>14} {:>12} {:>14} {:>16}",
+        "integrator", "samples/s", "rays/s", "rays/sample", "time vs first"
+    );
+    let mut first = None;
+    for (kind, stats) in kinds.iter().zip(&mut runs) {
+        stats.sort_by_key(|s| s.elapsed);
+        let median = &stats[stats.len() / 2];
+        let secs = median.elapsed.as_secs_f64().max(1e-9);
+        let base = *first.get_or_insert(secs);
+        println!(
+            "{:<10} {:>14.0} {:>12.0} {:>14.2} {:>15.2}x",
+            kind.name(),
+            median.samples as f64 / secs,
+            median.rays as f64 / secs,
+            median.rays as f64 / median.samples.max(1) as f64,
+            secs / base
+        );
+    }
     Ok(0)
 }
 
