@@ -304,3 +304,313 @@ pub fn path_geometry(path: &[Vertex]) -> Vec<LocalGeometry> {
 pub fn path_etas(scene: &Scene, path: &[Vertex]) -> Vec<f64> {
     path.iter().map(|v| v.bsdf(scene).map_or(1.0, |b| b.eta() as f64)).collect()
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::{Frame, Vec2, Vec3};
+    use crate::path::{ScatterClass, VertexKind};
+    use crate::sampling::Sampler;
+    use crate::scene::SurfaceDerivatives;
+    use crate::spectrum::Spectrum;
+
+    fn uniform(rng: &mut Sampler, lo: f64, hi: f64) -> f64 {
+        lo + (hi - lo) * rng.next_f64()
+    }
+
+    fn random_vec(rng: &mut Sampler) -> DVec3 {
+        DVec3::new(uniform(rng, -1.0, 1.0), uniform(rng, -1.0, 1.0), uniform(rng, -1.0, 1.0))
+    }
+
+    /// A curved vertex at `p`: geometric normal `ng`, shading normal tilted from it, orthonormal tangents
+    /// in the geometric plane, and normal derivatives of order one.
+    fn random_vertex(rng: &mut Sampler, p: DVec3, ng: DVec3) -> LocalGeometry {
+        let n = (ng + random_vec(rng) * 0.15).normalize();
+        let tu = (random_vec(rng).cross(ng)).normalize();
+        let tv = ng.cross(tu);
+        let tangential = |w: DVec3| w - n * n.dot(w);
+        LocalGeometry {
+            p,
+            ng,
+            n,
+            tu,
+            tv,
+            dn_du: tangential(random_vec(rng) * 0.8),
+            dn_dv: tangential(random_vec(rng) * 0.8),
+        }
+    }
+
+    #[derive(Clone, Copy, Debug)]
+    enum Scattering {
+        Reflection,
+        Refraction { eta: f64 },
+    }
+
+    /// prev, cur, next with next on the far side for refraction, away from grazing and from the
+    /// orientation flip of H (where the constraint is not differentiable).
+    fn random_configuration(
+        rng: &mut Sampler,
+        kind: Scattering,
+    ) -> (LocalGeometry, LocalGeometry, LocalGeometry) {
+        loop {
+            let ng = (DVec3::Z + random_vec(rng) * 0.4).normalize();
+            let p = random_vec(rng) * 0.3;
+            let cur = random_vertex(rng, p, ng);
+            let away = |rng: &mut Sampler, side: f64| loop {
+                let d = random_vec(rng).normalize();
+                if side * d.dot(ng) > 0.25 {
+                    return d * uniform(rng, 0.4, 3.0);
+                }
+            };
+            let prev_side = if rng.next_f64() < 0.5 { 1.0 } else { -1.0 };
+            let next_side = match kind {
+                Scattering::Reflection => prev_side,
+                Scattering::Refraction { .. } => -prev_side,
+            };
+            let prev_p = cur.p + away(rng, prev_side);
+            let next_p = cur.p + away(rng, next_side);
+            let prev_ng = random_vec(rng).normalize();
+            let prev = random_vertex(rng, prev_p, prev_ng);
+            let next_ng = random_vec(rng).normalize();
+            let next = random_vertex(rng, next_p, next_ng);
+            let eta = match kind {
+                Scattering::Reflection => 1.0,
+                Scattering::Refraction { eta } => eta,
+            };
+            let (wi, wo) = ((prev.p - cur.p).normalize(), (next.p - cur.p).normalize());
+            let (eta_rel, matched) = relative_eta(cur.ng, wi, wo, eta);
+            let h_raw = wi + wo * eta_rel;
+            if matched || (h_raw.normalize().dot(cur.n).abs() > 0.1 && h_raw.length() > 0.1) {
+                return (prev, cur, next);
+            }
+        }
+    }
+
+    fn max_abs(m: DMat2) -> f64 {
+        m.abs().to_cols_array().into_iter().fold(0.0, f64::max)
+    }
+
+    #[test]
+    fn analytic_blocks_equal_central_differences() {
+        let mut rng = Sampler::from_seed(11);
+        let kinds = [
+            Scattering::Reflection,
+            Scattering::Refraction { eta: 1.5 },
+            Scattering::Refraction { eta: 1.0 / 1.33 },
+            Scattering::Refraction { eta: 1.0 },
+        ];
+        // Lengths and curvatures are O(1): with step 1e-5 the central difference's truncation error is
+        // ~1e-10 and its rounding error ~ε/1e-5 ≈ 2e-11, so 1e-7 of the row's largest entry separates
+        // them from any real mistake (a dropped term or a wrong sign is O(1) of the row).
+        let step = 1e-5;
+        let mut worst: f64 = 0.0;
+        for kind in kinds {
+            for _ in 0..200 {
+                let (prev, cur, next) = random_configuration(&mut rng, kind);
+                let eta = match kind {
+                    Scattering::Reflection => 1.0,
+                    Scattering::Refraction { eta } => eta,
+                };
+                let vc = half_vector_constraint(&prev, &cur, &next, eta).unwrap();
+                assert_eq!(vc.index_matched, matches!(kind, Scattering::Refraction { eta } if eta == 1.0));
+                let row_scale = max_abs(vc.a).max(max_abs(vc.b)).max(max_abs(vc.c));
+                let mut numeric = [DMat2::ZERO; 3];
+                for (which, block) in numeric.iter_mut().enumerate() {
+                    for axis in 0..2 {
+                        let d = if axis == 0 { DVec2::X * step } else { DVec2::Y * step };
+                        let moved = |sign: f64| {
+                            let mut v = [prev, cur, next];
+                            v[which] = v[which].offset(d * sign);
+                            half_vector(&v[0], &v[1], &v[2], eta).unwrap()
+                        };
+                        *block.col_mut(axis) = (moved(1.0) - moved(-1.0)) / (2.0 * step);
+                    }
+                }
+                for (analytic, numeric) in [vc.a, vc.b, vc.c].into_iter().zip(numeric) {
+                    let err = max_abs(analytic - numeric) / row_scale;
+                    worst = worst.max(err);
+                    assert!(err < 1e-7, "{kind:?}: analytic {analytic:?} numeric {numeric:?} ({err:e})");
+                }
+            }
+        }
+        assert!(worst > 0.0, "the comparison must have compared something");
+    }
+
+    /// Snell's law with relative index eta = η_t/η_i; `wi` points away from the surface on `n`'s side.
+    fn refract(wi: DVec3, n: DVec3, eta: f64) -> DVec3 {
+        let cos_i = wi.dot(n);
+        let cos_t = (1.0 - (1.0 - cos_i * cos_i) / (eta * eta)).sqrt();
+        -wi / eta + n * (cos_i / eta - cos_t)
+    }
+
+    #[test]
+    fn mirror_and_snell_configurations_have_zero_half_vector() {
+        let mut rng = Sampler::from_seed(12);
+        for _ in 0..100 {
+            let ng = (DVec3::Z + random_vec(&mut rng) * 0.3).normalize();
+            let mut cur = random_vertex(&mut rng, DVec3::ZERO, ng);
+            cur.n = ng;
+            let wi = loop {
+                let d = random_vec(&mut rng).normalize();
+                if d.dot(ng) > 0.3 {
+                    break d;
+                }
+            };
+            let at = |d: DVec3, dist: f64| LocalGeometry { p: d * dist, ..cur };
+            let mirror = 2.0 * wi.dot(ng) * ng - wi;
+            let h = half_vector(&at(wi, 2.0), &cur, &at(mirror, 0.7), 1.0).unwrap();
+            assert!(h.length() < 1e-12, "reflection {h:?}");
+            // Entering glass from outside (η = 1.5), and leaving it: the light path reversed.
+            let inside = refract(wi, ng, 1.5);
+            let h = half_vector(&at(wi, 1.3), &cur, &at(inside, 0.4), 1.5).unwrap();
+            assert!(h.length() < 1e-12, "refraction in {h:?}");
+            let h = half_vector(&at(inside, 0.4), &cur, &at(wi, 1.3), 1.5).unwrap();
+            assert!(h.length() < 1e-12, "refraction out {h:?}");
+            // A direction that is not the refracted one is off the manifold.
+            let wrong = refract(wi, ng, 1.2);
+            assert!(half_vector(&at(wi, 1.3), &cur, &at(wrong, 0.4), 1.5).unwrap().length() > 1e-3);
+        }
+    }
+
+    #[test]
+    fn straight_through_an_index_matched_interface_is_the_solution() {
+        let cur = random_vertex(&mut Sampler::from_seed(13), DVec3::ZERO, DVec3::Z);
+        let w = DVec3::new(0.3, -0.2, 0.9).normalize();
+        let at = |d: DVec3| LocalGeometry { p: d, ..cur };
+        let vc = half_vector_constraint(&at(w * 2.0), &cur, &at(-w * 0.5), 1.0).unwrap();
+        assert!(vc.index_matched && vc.h.length() < 1e-15, "{vc:?}");
+        // It stays solvable there: B is invertible although H~ = 0.
+        assert!(vc.b.determinant().abs() > 1e-3);
+    }
+
+    #[test]
+    fn degenerate_segments_and_half_vectors_are_errors() {
+        let cur = random_vertex(&mut Sampler::from_seed(14), DVec3::ZERO, DVec3::Z);
+        let at = |p: DVec3| LocalGeometry { p, ..cur };
+        let e = half_vector(&at(DVec3::ZERO), &cur, &at(DVec3::Z), 1.0).unwrap_err();
+        assert!(matches!(e, ConstraintError::DegenerateSegment { .. }));
+        let e = half_vector(&at(DVec3::NAN), &cur, &at(DVec3::Z), 1.0).unwrap_err();
+        assert!(matches!(e, ConstraintError::DegenerateSegment { .. }));
+        // Unit wi and wo cancel only for eta_rel = 1, i.e. index-matched; an eta just outside the
+        // index-match tolerance leaves |H~| ~ 1e-9, which must be refused rather than normalised.
+        let e = half_vector(&at(DVec3::Z), &cur, &at(-DVec3::Z * 3.0), 1.0 + 1.5e-9).unwrap_err();
+        assert!(matches!(e, ConstraintError::DegenerateHalfVector { .. }), "{e:?}");
+        // Errors of a path name the vertex.
+        let g = [at(DVec3::Z), cur, at(DVec3::new(1.0, 0.0, 1.0)), at(DVec3::new(1.0, 0.0, 1.0))];
+        let e = path_constraints(&g, &[1.0; 4]).unwrap_err();
+        assert_eq!(e, ConstraintError::DegenerateSegment { vertex: 2 });
+    }
+
+    fn vertex_with(p: Vec3, n: Vec3, ng: Vec3, derivatives: SurfaceDerivatives) -> Vertex {
+        Vertex {
+            kind: VertexKind::Surface,
+            p,
+            ng,
+            frame: Frame::from_normal_tangent(n, derivatives.dpdu),
+            uv: Vec2::ZERO,
+            derivatives,
+            shape: 0,
+            prim: 0,
+            bary: Vec2::ZERO,
+            light: None,
+            class: ScatterClass::Glossy { alpha: 0.1 },
+            delta: false,
+            pdf_from_camera: 0.0,
+            pdf_from_light: 0.0,
+            beta: Spectrum::ONE,
+        }
+    }
+
+    #[test]
+    fn from_vertex_orthonormalises_tangents_and_maps_normal_derivatives_alike() {
+        let mut rng = Sampler::from_seed(15);
+        for _ in 0..50 {
+            let ng = (DVec3::Z + random_vec(&mut rng) * 0.3).normalize();
+            let n = (ng + random_vec(&mut rng) * 0.1).normalize();
+            let in_plane = |rng: &mut Sampler| {
+                let v = random_vec(rng);
+                (v - ng * ng.dot(v)) * uniform(rng, 0.1, 5.0)
+            };
+            let (dpdu, dpdv) = (in_plane(&mut rng), in_plane(&mut rng));
+            let tangent_n = |rng: &mut Sampler| {
+                let v = random_vec(rng);
+                v - n * n.dot(v)
+            };
+            let (dndu, dndv) = (tangent_n(&mut rng), tangent_n(&mut rng));
+            let d = SurfaceDerivatives {
+                dpdu: dpdu.as_vec3(),
+                dpdv: dpdv.as_vec3(),
+                dndu: dndu.as_vec3(),
+                dndv: dndv.as_vec3(),
+                from_uv: true,
+            };
+            let v = vertex_with(Vec3::ONE, n.as_vec3(), ng.as_vec3(), d);
+            let g = LocalGeometry::from_vertex(&v);
+            assert!((g.tu.length() - 1.0).abs() < 1e-12 && (g.tv.length() - 1.0).abs() < 1e-12);
+            assert!(g.tu.dot(g.tv).abs() < 1e-12);
+            // A tangent offset (a, b) is the parameter step (du, dv) with dpdu du + dpdv dv = a tu + b tv;
+            // the normal must then change by dndu du + dndv dv (computed in f32 inputs: 1e-5 slack).
+            let (a, b) = (uniform(&mut rng, -1.0, 1.0), uniform(&mut rng, -1.0, 1.0));
+            let target = g.displacement(DVec2::new(a, b));
+            let m = DMat2::from_cols(
+                DVec2::new(d.dpdu.as_dvec3().dot(g.tu), d.dpdu.as_dvec3().dot(g.tv)),
+                DVec2::new(d.dpdv.as_dvec3().dot(g.tu), d.dpdv.as_dvec3().dot(g.tv)),
+            );
+            let duv = m.inverse() * DVec2::new(target.dot(g.tu), target.dot(g.tv));
+            let dn_param = d.dndu.as_dvec3() * duv.x + d.dndv.as_dvec3() * duv.y;
+            let dn_model = g.dn_du * a + g.dn_dv * b;
+            let tangential = |w: DVec3| w - g.n * g.n.dot(w);
+            assert!((tangential(dn_param) - dn_model).length() < 1e-5 * (1.0 + dn_model.length()));
+            // The projection frame is the vertex's own shading frame.
+            let (s, t) = g.shading_frame().unwrap();
+            assert!((s - v.frame.s.as_dvec3()).length() < 1e-6 && (t - v.frame.t.as_dvec3()).length() < 1e-6);
+        }
+    }
+
+    #[test]
+    fn path_constraints_assemble_the_per_vertex_blocks() {
+        let mut rng = Sampler::from_seed(16);
+        let k = 6;
+        let geometry: Vec<LocalGeometry> = (0..=k)
+            .map(|i| {
+                let p = DVec3::new(i as f64, if i % 2 == 0 { 0.0 } else { 1.0 }, 0.1 * i as f64);
+                let ng = DVec3::new(0.0, if i % 2 == 0 { 1.0 } else { -1.0 }, 0.0);
+                random_vertex(&mut rng, p, ng)
+            })
+            .collect();
+        let eta = vec![1.0; k + 1];
+        let pc = path_constraints(&geometry, &eta).unwrap();
+        assert_eq!(pc.h.len(), k - 1);
+        assert_eq!(pc.h, path_half_vectors(&geometry, &eta).unwrap());
+        for i in 1..k {
+            let vc = half_vector_constraint(&geometry[i - 1], &geometry[i], &geometry[i + 1], 1.0).unwrap();
+            assert_eq!(
+                (pc.jacobian.a[i - 1], pc.jacobian.b[i - 1], pc.jacobian.c[i - 1]),
+                (vc.a, vc.b, vc.c)
+            );
+        }
+        // det J against a finite-difference Jacobian of all half vectors w.r.t. all inner offsets.
+        let n = k - 1;
+        let step = 1e-6;
+        let mut dense = nalgebra::DMatrix::<f64>::zeros(2 * n, 2 * n);
+        for j in 0..n {
+            for axis in 0..2 {
+                let d = if axis == 0 { DVec2::X * step } else { DVec2::Y * step };
+                let eval = |sign: f64| {
+                    let mut g = geometry.clone();
+                    g[j + 1] = g[j + 1].offset(d * sign);
+                    path_half_vectors(&g, &eta).unwrap()
+                };
+                let (hp, hm) = (eval(1.0), eval(-1.0));
+                for i in 0..n {
+                    let col = (hp[i] - hm[i]) / (2.0 * step);
+                    dense[(2 * i, 2 * j + axis)] = col.x;
+                    dense[(2 * i + 1, 2 * j + axis)] = col.y;
+                }
+            }
+        }
+        let det_fd = dense.determinant();
+        let det = pc.jacobian.factor().unwrap().log_det().value();
+        assert!(((det - det_fd) / det_fd).abs() < 1e-6, "det J {det:e} vs finite differences {det_fd:e}");
+    }
+}
