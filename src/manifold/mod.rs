@@ -4,9 +4,14 @@
 
 pub mod blocktri;
 pub mod constraint;
+pub mod sampling;
 
 pub use blocktri::{invert_block, BlockLu, BlockTridiagonal, LogDet, Singular};
 pub use constraint::{
     half_vector, half_vector_constraint, path_constraints, path_etas, path_geometry, path_half_vectors,
     ConstraintError, LocalGeometry, PathConstraints, VertexConstraint,
+};
+pub use sampling::{
+    bandwidth_shares, beckmann_to_phong, mobius, mobius_inverse, step_sizes, HalfVectorProposal,
+    PhongDiskLobe, StepSizes,
 };
