@@ -157,7 +157,7 @@ impl StepSizes {
 pub fn step_sizes(bsdf_step: f64, dh_du: DVec2, dh_dv: DVec2) -> StepSizes {
     let bsdf_step = if bsdf_step.is_nan() { MIN_STEP } else { bsdf_step.max(MIN_STEP) };
     let (lu, lv) = (dh_du.length(), dh_dv.length());
-    if !(lu.is_finite() && lv.is_finite()) || !(lu.max(lv) > 0.0) {
+    if !(lu.is_finite() && lv.is_finite() && lu.max(lv) > 0.0) {
         return StepSizes { axes: DMat2::IDENTITY, sigma: DVec2::splat(bsdf_step) };
     }
     let (long, long_len, short_len) = if lu >= lv { (dh_du, lu, lv) } else { (dh_dv, lv, lu) };
