@@ -5,6 +5,7 @@
 pub mod blocktri;
 pub mod constraint;
 pub mod sampling;
+pub mod walk;
 
 pub use blocktri::{invert_block, BlockLu, BlockTridiagonal, LogDet, Singular};
 pub use constraint::{
@@ -15,3 +16,4 @@ pub use sampling::{
     bandwidth_shares, beckmann_to_phong, mobius, mobius_inverse, step_sizes, HalfVectorProposal,
     PhongDiskLobe, StepSizes,
 };
+pub use walk::{corrector_pass, walk, CorrectorFailure, WalkError, WalkResult, WalkSettings};
