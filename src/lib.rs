@@ -13,6 +13,7 @@ pub mod geometry;
 pub mod image;
 pub mod integrators;
 pub mod lights;
+pub mod manifold;
 pub mod path;
 pub mod render;
 pub mod sampling;

@@ -1,0 +1,19 @@
+//! The manifold machinery shared by HSLT (Kaplanyan et al. 2014) and manifold exploration MLT (Jakob and
+//! Marschner 2012): half-vector constraints of a path with fixed endpoints, their block-tridiagonal
+//! Jacobian and its solvers, and the Möbius-shifted half-vector proposals.
+
+pub mod blocktri;
+pub mod constraint;
+pub mod sampling;
+pub mod walk;
+
+pub use blocktri::{invert_block, BlockLu, BlockTridiagonal, LogDet, Singular};
+pub use constraint::{
+    half_vector, half_vector_constraint, path_constraints, path_etas, path_geometry, path_half_vectors,
+    ConstraintError, LocalGeometry, PathConstraints, VertexConstraint,
+};
+pub use sampling::{
+    bandwidth_shares, beckmann_to_phong, mobius, mobius_inverse, step_sizes, HalfVectorProposal,
+    PhongDiskLobe, StepSizes,
+};
+pub use walk::{corrector_pass, walk, CorrectorFailure, WalkError, WalkResult, WalkSettings};
