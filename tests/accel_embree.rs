@@ -336,7 +336,7 @@ fn geom_id_is_the_mesh_index_even_with_empty_meshes() {
     // The empty-scene case: builds, everything misses.
     let nothing = EmbreeScene::build(&[empty]).unwrap();
     assert_eq!(nothing.intersect(&ray(Vec3::ZERO, up)), None);
-    let no_meshes = EmbreeScene::build(&[]).unwrap();
+    let no_meshes = EmbreeScene::build::<TriangleMesh>(&[]).unwrap();
     assert!(!no_meshes.occluded(&ray(Vec3::ZERO, up)));
 }
 

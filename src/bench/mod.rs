@@ -11,6 +11,7 @@ use crate::scene::{LoadOptions, Scene};
 use rayon::prelude::*;
 use std::fmt::Write as _;
 use std::path::Path;
+use std::sync::Arc;
 use std::time::Instant;
 
 /// Rays per corrector bundle: a Newton step casts a handful of rays from one vertex. 16 is the
@@ -23,7 +24,8 @@ const BUNDLE_CONE_DEGREES: f32 = 2.0;
 /// A scene reduced to what the ray benchmark needs.
 pub struct BenchScene {
     pub name: String,
-    pub meshes: Vec<TriangleMesh>,
+    /// Shared with the loaded scene, not copied: the backends build from borrowed meshes.
+    pub meshes: Vec<Arc<TriangleMesh>>,
     pub camera: Box<dyn Fn(Vec2) -> Ray + Sync>,
     /// Meshes whose points serve as shadow-ray targets (emitters, else all).
     pub light_meshes: Vec<usize>,
@@ -32,7 +34,7 @@ pub struct BenchScene {
 /// Loads a scene file for the benchmark.
 pub fn load_scene(path: &Path, defines: &[(String, String)]) -> anyhow::Result<BenchScene> {
     let scene = Scene::load(path, &LoadOptions { defines: defines.to_vec(), accel: Default::default() })?;
-    let meshes: Vec<TriangleMesh> = scene.shapes.iter().map(|s| (*s.mesh).clone()).collect();
+    let meshes: Vec<Arc<TriangleMesh>> = scene.shapes.iter().map(|s| Arc::clone(&s.mesh)).collect();
     let mut light_meshes: Vec<usize> =
         (0..meshes.len()).filter(|&i| scene.shapes[i].light.is_some()).collect();
     if light_meshes.is_empty() {
@@ -99,7 +101,7 @@ pub fn large_scene(n: usize) -> BenchScene {
     let frame = Frame::from_normal(forward);
     BenchScene {
         name: format!("generated displaced sphere ({} triangles)", 2 * n * n + 4),
-        meshes: vec![sphere, floor, light],
+        meshes: vec![Arc::new(sphere), Arc::new(floor), Arc::new(light)],
         camera: Box::new(move |s| {
             let local = Vec3::new((2.0 * s.x - 1.0) * 0.6, (1.0 - 2.0 * s.y) * 0.6, 1.0);
             Ray::new(eye, frame.to_world(local).normalize())
@@ -108,7 +110,7 @@ pub fn large_scene(n: usize) -> BenchScene {
     }
 }
 
-fn random_point_on(meshes: &[TriangleMesh], which: &[usize], sampler: &mut Sampler) -> Option<Vec3> {
+fn random_point_on(meshes: &[Arc<TriangleMesh>], which: &[usize], sampler: &mut Sampler) -> Option<Vec3> {
     let candidates: Vec<usize> = which.iter().copied().filter(|&m| !meshes[m].indices.is_empty()).collect();
     let m = &meshes[*candidates
         .get((sampler.next_1d() * candidates.len() as f32) as usize % candidates.len().max(1))?];
@@ -327,6 +329,7 @@ pub fn bench_rays(scene: &BenchScene, count: usize, pool: &rayon::ThreadPool) ->
     }
     rows.push(("corrector visibility x16".into(), &sets.visibility, true, 16));
     let mut ab_blocks = 0;
+    let mut overhead_sides = Vec::new();
     let embree = &embree;
     for (label, rays, occlusion, chunk) in rows {
         if rays.is_empty() {
@@ -412,8 +415,12 @@ pub fn bench_rays(scene: &BenchScene, count: usize, pool: &rayon::ThreadPool) ->
             let raw = |c: &[Ray]| {
                 std::hint::black_box(embree.raw_intersect1_loop(c));
             };
-            let (ratio, _) = pool.install(|| paired_ratio(rays, &wrapper, &raw));
-            format!("{:+.1}%", 100.0 * (ratio - 1.0))
+            // Measured in both orders and combined (geometric mean), so any bias from a side's
+            // position in the A, B, B, A pattern cancels; the two one-sided figures show its size.
+            let (forward, _) = pool.install(|| paired_ratio(rays, &wrapper, &raw));
+            let (backward, _) = pool.install(|| paired_ratio(rays, &raw, &wrapper));
+            overhead_sides.push((label.clone(), forward, 1.0 / backward));
+            format!("{:+.1}%", 100.0 * ((forward / backward).sqrt() - 1.0))
         };
         let _ = write!(out, "           {label:<24}");
         for v in &speeds {
@@ -426,9 +433,14 @@ pub fn bench_rays(scene: &BenchScene, count: usize, pool: &rayon::ThreadPool) ->
         "           emb-1 single rays through the wrapper; pkt-inc/pkt-coh {w}-wide packets with the incoherent/coherent hint;\n\
          \x20          str-inc/str-coh rtcIntersect1M/rtcOccluded1M with either hint; batch the batch API (packets, coherent hint\n\
          \x20          for packets sharing one origin); bvh-1 the Rust BVH; batch/1 (single-ray time over batch time) and overhead\n\
-         \x20          (wrapper over raw rtcIntersect1 time - 1) are medians of {} paired {AB_BLOCK}-ray blocks on one thread",
+         \x20          (wrapper over raw rtcIntersect1 time - 1, geometric mean of both A/B orders) are medians of {} paired {AB_BLOCK}-ray blocks on one thread",
         ab_blocks,
         w = embree.packet_width(),
     );
+    let _ = write!(out, "overhead   one-sided (wrapper as A / as B):");
+    for (label, forward, backward) in &overhead_sides {
+        let _ = write!(out, "  {label} {:+.1}%/{:+.1}%", 100.0 * (forward - 1.0), 100.0 * (backward - 1.0));
+    }
+    let _ = writeln!(out);
     Ok(out)
 }

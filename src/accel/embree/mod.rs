@@ -4,6 +4,7 @@
 
 mod ffi;
 
+use std::borrow::Borrow;
 use std::ffi::{c_char, c_int, c_void, CStr};
 use std::ptr;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -35,12 +36,13 @@ unsafe impl Sync for EmbreeScene {}
 impl EmbreeScene {
     /// Builds the BVH for `meshes` (world space). Fails with a message naming the mesh and element on
     /// non-finite vertices or out-of-range indices, and with Embree's own message on device errors.
-    pub fn build(meshes: &[TriangleMesh]) -> anyhow::Result<EmbreeScene> {
+    /// Takes owned meshes, references or `Arc`s alike, so callers need not copy their meshes.
+    pub fn build<M: Borrow<TriangleMesh>>(meshes: &[M]) -> anyhow::Result<EmbreeScene> {
         if meshes.len() >= ffi::RTC_INVALID_GEOMETRY_ID as usize {
             bail!("Embree: {} meshes exceed the geometry id range", meshes.len());
         }
         for (index, mesh) in meshes.iter().enumerate() {
-            validate_mesh(index, mesh)?;
+            validate_mesh(index, mesh.borrow())?;
         }
 
         let device = Device::new()?;
@@ -59,6 +61,7 @@ impl EmbreeScene {
         device.check("setting scene flags")?;
 
         for (index, mesh) in meshes.iter().enumerate() {
+            let mesh = mesh.borrow();
             if mesh.indices.is_empty() {
                 continue;
             }
