@@ -122,7 +122,8 @@ impl EmbreeScene {
         rtc.tfar == f32::NEG_INFINITY
     }
 
-    /// Closest hits for `rays` (`hits.len()` must equal `rays.len()`), by the strategy
+    /// Closest hits for `rays` (`hits.len()` should equal `rays.len()`; the shorter length is
+    /// processed, as with the trait's default methods), by the strategy
     /// `hslt bench rays` measured fastest on every ray set (docs/benchmarks.md): packets of
     /// [`Self::packet_width`] rays, with Embree's coherent (frustum) traversal for packets whose rays
     /// share one origin — camera rays, manifold-corrector bundles — and its hybrid packet/single-ray
@@ -131,7 +132,7 @@ impl EmbreeScene {
         self.intersect_packets(rays, hits, PacketHint::SharedOrigin);
     }
 
-    /// Occlusion for `rays` (`occluded.len()` must equal `rays.len()`); same strategy as
+    /// Occlusion for `rays` (`occluded.len()` should equal `rays.len()`); same strategy as
     /// [`Self::intersect_batch`].
     pub fn occluded_batch(&self, rays: &[Ray], occluded: &mut [bool]) {
         self.occluded_packets(rays, occluded, PacketHint::SharedOrigin);
@@ -140,7 +141,7 @@ impl EmbreeScene {
     /// Closest hits in packets of [`Self::packet_width`] with the given coherence hint (single
     /// rays with one shared context when this Embree has no packet kernels).
     pub fn intersect_packets(&self, rays: &[Ray], hits: &mut [Option<Hit>], hint: PacketHint) {
-        assert_eq!(rays.len(), hits.len(), "intersect_packets: length mismatch");
+        debug_assert_eq!(rays.len(), hits.len(), "intersect_packets: length mismatch");
         match self.packet_width {
             16 => self.intersect_packets16(rays, hits, hint),
             8 => self.intersect_packets8(rays, hits, hint),
@@ -162,7 +163,7 @@ impl EmbreeScene {
 
     /// Occlusion in packets of [`Self::packet_width`] with the given coherence hint.
     pub fn occluded_packets(&self, rays: &[Ray], occluded: &mut [bool], hint: PacketHint) {
-        assert_eq!(rays.len(), occluded.len(), "occluded_packets: length mismatch");
+        debug_assert_eq!(rays.len(), occluded.len(), "occluded_packets: length mismatch");
         match self.packet_width {
             16 => self.occluded_packets16(rays, occluded, hint),
             8 => self.occluded_packets8(rays, occluded, hint),
@@ -199,7 +200,7 @@ impl EmbreeScene {
     /// Closest hits through Embree's stream API: the rays go in one array and Embree regroups them
     /// into packets itself. `coherent` sets the context hint. Invalid rays get `None`.
     pub fn intersect_stream(&self, rays: &[Ray], hits: &mut [Option<Hit>], coherent: bool) {
-        assert_eq!(rays.len(), hits.len(), "intersect_stream: length mismatch");
+        debug_assert_eq!(rays.len(), hits.len(), "intersect_stream: length mismatch");
         let mut stream: Vec<ffi::RTCRayHit> = Vec::with_capacity(rays.len());
         let mut valid = Vec::with_capacity(rays.len());
         for ray in rays {
@@ -228,7 +229,7 @@ impl EmbreeScene {
 
     /// Occlusion through `rtcOccluded1M` (see [`Self::intersect_stream`]).
     pub fn occluded_stream(&self, rays: &[Ray], occluded: &mut [bool], coherent: bool) {
-        assert_eq!(rays.len(), occluded.len(), "occluded_stream: length mismatch");
+        debug_assert_eq!(rays.len(), occluded.len(), "occluded_stream: length mismatch");
         let mut stream: Vec<ffi::RTCRay> = rays.iter().map(|ray| rtc_ray(ray).unwrap_or(EMPTY_RAY)).collect();
         let mut context = new_context(coherence_flag(coherent));
         // SAFETY: as in `intersect_stream`, with RTCRay elements.
