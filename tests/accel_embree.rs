@@ -1,7 +1,7 @@
 //! Embree backend against hand-computable scenes: hit distances, barycentrics and ids, interval
 //! bounds, packet/single agreement, watertightness on shared edges and vertices, and error handling.
 
-use hslt::accel::embree::{embree_version, EmbreeScene};
+use hslt::accel::embree::{embree_version, EmbreeScene, PacketHint};
 use hslt::accel::{build, AccelKind, Hit, RayQuery};
 use hslt::geometry::{Ray, TriangleMesh, Vec3};
 use rand::{Rng, SeedableRng};
@@ -251,6 +251,73 @@ fn batches_agree_with_single_rays_for_every_batch_size() {
     scene.check_error().unwrap();
 }
 
+/// Bundles from one origin take Embree's coherent (frustum) packet traversal, a different code path
+/// from the hybrid one the random rays above exercise. Bundles mix narrow cones, directions in every
+/// octant, finite and infinite tmax, and an invalid ray, and every hint and the stream call must
+/// agree with single rays.
+#[test]
+fn shared_origin_bundles_agree_with_single_rays_for_every_hint() {
+    let (meshes, _) = random_scene_and_rays(5, 0);
+    let scene = EmbreeScene::build(&meshes).unwrap();
+    let mut rng = Pcg32::seed_from_u64(23);
+    let mut rays = Vec::new();
+    for bundle in 0..200 {
+        let origin =
+            Vec3::new(rng.random_range(-3.0..3.0), rng.random_range(-3.0..3.0), rng.random_range(-3.0..3.0));
+        let axis =
+            Vec3::new(rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0));
+        // Odd bundles spread over all directions, so one packet straddles octants.
+        let spread = if bundle % 2 == 0 { 0.03 } else { 1.0 };
+        for k in 0..16 {
+            let jitter = Vec3::new(
+                rng.random_range(-spread..spread),
+                rng.random_range(-spread..spread),
+                rng.random_range(-spread..spread),
+            );
+            let tmax = if k % 3 == 0 { rng.random_range(0.5..4.0) } else { f32::INFINITY };
+            let mut ray = Ray { origin, dir: axis + jitter, tmin: 0.0, tmax };
+            if bundle % 7 == 0 && k == 5 {
+                ray.dir = Vec3::ZERO;
+            }
+            rays.push(ray);
+        }
+    }
+    let single_hits: Vec<Option<Hit>> = rays.iter().map(|r| scene.intersect(r)).collect();
+    let single_occ: Vec<bool> = rays.iter().map(|r| scene.occluded(r)).collect();
+    let hit_count = single_hits.iter().filter(|h| h.is_some()).count();
+    assert!(hit_count > rays.len() / 5 && hit_count < rays.len() * 9 / 10, "{hit_count} hits");
+
+    let check = |what: &str, hits: &[Option<Hit>], occ: &[bool]| {
+        for i in 0..rays.len() {
+            assert!(
+                same_hit(&hits[i], &single_hits[i]),
+                "{what}, ray {i} {:?}: {:?} vs single {:?}",
+                rays[i],
+                hits[i],
+                single_hits[i]
+            );
+            assert_eq!(occ[i], single_occ[i], "{what}, ray {i} {:?}", rays[i]);
+        }
+    };
+    for hint in [PacketHint::Incoherent, PacketHint::Coherent, PacketHint::SharedOrigin] {
+        let mut hits = vec![None; rays.len()];
+        let mut occ = vec![false; rays.len()];
+        for ((r, h), o) in rays.chunks(16).zip(hits.chunks_mut(16)).zip(occ.chunks_mut(16)) {
+            scene.intersect_packets(r, h, hint);
+            scene.occluded_packets(r, o, hint);
+        }
+        check(&format!("{hint:?}"), &hits, &occ);
+    }
+    for coherent in [false, true] {
+        let mut hits = vec![None; rays.len()];
+        let mut occ = vec![false; rays.len()];
+        scene.intersect_stream(&rays, &mut hits, coherent);
+        scene.occluded_stream(&rays, &mut occ, coherent);
+        check(&format!("stream, coherent {coherent}"), &hits, &occ);
+    }
+    scene.check_error().unwrap();
+}
+
 #[test]
 fn geom_id_is_the_mesh_index_even_with_empty_meshes() {
     let far_tri = mesh("far", &[[0.0, 0.0, 10.0], [1.0, 0.0, 10.0], [0.0, 1.0, 10.0]], &[[0, 1, 2]]);
@@ -269,7 +336,7 @@ fn geom_id_is_the_mesh_index_even_with_empty_meshes() {
     // The empty-scene case: builds, everything misses.
     let nothing = EmbreeScene::build(&[empty]).unwrap();
     assert_eq!(nothing.intersect(&ray(Vec3::ZERO, up)), None);
-    let no_meshes = EmbreeScene::build(&[]).unwrap();
+    let no_meshes = EmbreeScene::build::<TriangleMesh>(&[]).unwrap();
     assert!(!no_meshes.occluded(&ray(Vec3::ZERO, up)));
 }
 

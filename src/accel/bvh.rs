@@ -2,6 +2,8 @@
 //! Ray Traversal on GPUs Through Compressed Wide BVHs", HPG 2017) built by the `obvhs` crate (PLOC +
 //! reinsertion), with our own watertight ray/triangle test (Woop, Benthin, Wald, JCGT 2013).
 
+use std::borrow::Borrow;
+
 use anyhow::bail;
 use obvhs::aabb::Aabb;
 use obvhs::cwbvh::CwBvh;
@@ -41,13 +43,15 @@ pub struct BvhScene {
 impl BvhScene {
     /// Builds the BVH over `meshes` (world space). Fails naming the mesh and element on non-finite
     /// vertices or out-of-range indices.
-    pub fn build(meshes: &[TriangleMesh]) -> anyhow::Result<BvhScene> {
+    /// Takes owned meshes, references or `Arc`s alike, so callers need not copy their meshes.
+    pub fn build<M: Borrow<TriangleMesh>>(meshes: &[M]) -> anyhow::Result<BvhScene> {
         if meshes.len() > u32::MAX as usize {
             bail!("BVH: {} meshes exceed the geometry id range", meshes.len());
         }
-        let mut triangles = Vec::with_capacity(meshes.iter().map(|m| m.indices.len()).sum());
+        let mut triangles = Vec::with_capacity(meshes.iter().map(|m| m.borrow().indices.len()).sum());
         let mut extent = 0.0f32;
         for (geom, mesh) in meshes.iter().enumerate() {
+            let mesh = mesh.borrow();
             validate_mesh(geom, mesh)?;
             for (prim, tri) in mesh.indices.iter().enumerate() {
                 let [p0, p1, p2] = tri.map(|i| mesh.positions[i as usize]);

@@ -2,6 +2,7 @@
 //! same threads — build time, structure memory and Mrays/s for coherent, incoherent, shadow and
 //! manifold-corrector-style ray bundles; also Embree's packet/stream/single paths and wrapper overhead.
 
+use crate::accel::embree::PacketHint;
 use crate::accel::{BvhScene, EmbreeScene, Hit};
 use crate::geometry::{Frame, Ray, TriangleMesh, Vec2, Vec3};
 use crate::sampling::Sampler;
@@ -10,15 +11,21 @@ use crate::scene::{LoadOptions, Scene};
 use rayon::prelude::*;
 use std::fmt::Write as _;
 use std::path::Path;
+use std::sync::Arc;
 use std::time::Instant;
 
-/// Rays per corrector bundle: a Newton step casts a handful of rays from one vertex.
-const BUNDLE: usize = 16;
+/// Rays per corrector bundle: a Newton step casts a handful of rays from one vertex. 16 is the
+/// reference size; 8 and 64 show how the packet gain depends on it.
+const BUNDLE_SIZES: [usize; 3] = [8, 16, 64];
+
+/// Half-angle of the cone a corrector bundle's directions lie in.
+const BUNDLE_CONE_DEGREES: f32 = 2.0;
 
 /// A scene reduced to what the ray benchmark needs.
 pub struct BenchScene {
     pub name: String,
-    pub meshes: Vec<TriangleMesh>,
+    /// Shared with the loaded scene, not copied: the backends build from borrowed meshes.
+    pub meshes: Vec<Arc<TriangleMesh>>,
     pub camera: Box<dyn Fn(Vec2) -> Ray + Sync>,
     /// Meshes whose points serve as shadow-ray targets (emitters, else all).
     pub light_meshes: Vec<usize>,
@@ -27,7 +34,7 @@ pub struct BenchScene {
 /// Loads a scene file for the benchmark.
 pub fn load_scene(path: &Path, defines: &[(String, String)]) -> anyhow::Result<BenchScene> {
     let scene = Scene::load(path, &LoadOptions { defines: defines.to_vec(), accel: Default::default() })?;
-    let meshes: Vec<TriangleMesh> = scene.shapes.iter().map(|s| (*s.mesh).clone()).collect();
+    let meshes: Vec<Arc<TriangleMesh>> = scene.shapes.iter().map(|s| Arc::clone(&s.mesh)).collect();
     let mut light_meshes: Vec<usize> =
         (0..meshes.len()).filter(|&i| scene.shapes[i].light.is_some()).collect();
     if light_meshes.is_empty() {
@@ -94,7 +101,7 @@ pub fn large_scene(n: usize) -> BenchScene {
     let frame = Frame::from_normal(forward);
     BenchScene {
         name: format!("generated displaced sphere ({} triangles)", 2 * n * n + 4),
-        meshes: vec![sphere, floor, light],
+        meshes: vec![Arc::new(sphere), Arc::new(floor), Arc::new(light)],
         camera: Box::new(move |s| {
             let local = Vec3::new((2.0 * s.x - 1.0) * 0.6, (1.0 - 2.0 * s.y) * 0.6, 1.0);
             Ray::new(eye, frame.to_world(local).normalize())
@@ -103,7 +110,7 @@ pub fn large_scene(n: usize) -> BenchScene {
     }
 }
 
-fn random_point_on(meshes: &[TriangleMesh], which: &[usize], sampler: &mut Sampler) -> Option<Vec3> {
+fn random_point_on(meshes: &[Arc<TriangleMesh>], which: &[usize], sampler: &mut Sampler) -> Option<Vec3> {
     let candidates: Vec<usize> = which.iter().copied().filter(|&m| !meshes[m].indices.is_empty()).collect();
     let m = &meshes[*candidates
         .get((sampler.next_1d() * candidates.len() as f32) as usize % candidates.len().max(1))?];
@@ -114,12 +121,16 @@ fn random_point_on(meshes: &[TriangleMesh], which: &[usize], sampler: &mut Sampl
     Some(p0 + a * (p1 - p0) + b * (p2 - p0))
 }
 
-/// The four ray sets, built from Embree's answers so every backend traces identical rays.
+/// The ray sets, built from Embree's answers so every backend traces identical rays.
 pub struct RaySets {
     pub primary: Vec<Ray>,
     pub diffuse: Vec<Ray>,
     pub shadow: Vec<Ray>,
-    pub bundles: Vec<Ray>,
+    /// Corrector bundles (closest hit) for each size in `BUNDLE_SIZES`.
+    pub bundles: Vec<(usize, Vec<Ray>)>,
+    /// Corrector visibility bundles of 16: segments from one vertex to targets on the surface the
+    /// bundle's axis hits, as a corrector checks that a moved vertex still sees its neighbour.
+    pub visibility: Vec<Ray>,
 }
 
 pub fn make_ray_sets(scene: &BenchScene, reference: &EmbreeScene, count: usize) -> RaySets {
@@ -152,7 +163,8 @@ pub fn make_ray_sets(scene: &BenchScene, reference: &EmbreeScene, count: usize) 
     let mut sampler = Sampler::from_seed(99);
     let mut diffuse = Vec::with_capacity(count);
     let mut shadow = Vec::with_capacity(count);
-    let mut bundles = Vec::with_capacity(count);
+    let mut bundles = Vec::new();
+    let mut visibility = Vec::with_capacity(count);
     if !surface.is_empty() {
         for k in 0..count {
             let (p, n) = surface[k % surface.len()];
@@ -162,33 +174,92 @@ pub fn make_ray_sets(scene: &BenchScene, reference: &EmbreeScene, count: usize) 
                 shadow.push(Ray::segment(p, target - p, 1.0 - 1e-4));
             }
         }
-        // Corrector bundles: from one vertex, BUNDLE rays towards targets within a 2-degree cone.
-        while bundles.len() < count {
+        let cos_cone = BUNDLE_CONE_DEGREES.to_radians().cos();
+        for size in BUNDLE_SIZES {
+            // Corrector bundles: from one vertex, `size` rays within a small cone around a
+            // cosine-distributed axis.
+            let mut set = Vec::with_capacity(count);
+            while set.len() < count {
+                let (p, n) = surface[(sampler.next_1d() * surface.len() as f32) as usize % surface.len()];
+                let axis = Frame::from_normal(
+                    Frame::from_normal(n).to_world(square_to_cosine_hemisphere(sampler.next_2d())),
+                );
+                for _ in 0..size {
+                    set.push(Ray::new(p, axis.to_world(square_to_uniform_cone(sampler.next_2d(), cos_cone))));
+                }
+            }
+            set.truncate(count - count % size);
+            bundles.push((size, set));
+        }
+        // Visibility bundles: each segment ends just short of where the bundle's axis meets the
+        // scene, so rays near the axis are mostly clear and others may be blocked.
+        let mut attempts = 0;
+        while visibility.len() + 16 <= count && attempts < 4 * count {
+            attempts += 1;
             let (p, n) = surface[(sampler.next_1d() * surface.len() as f32) as usize % surface.len()];
-            let axis = Frame::from_normal(
-                Frame::from_normal(n).to_world(square_to_cosine_hemisphere(sampler.next_2d())),
-            );
-            for _ in 0..BUNDLE {
-                bundles.push(Ray::new(
-                    p,
-                    axis.to_world(square_to_uniform_cone(sampler.next_2d(), 2f32.to_radians().cos())),
-                ));
+            let axis = Frame::from_normal(n).to_world(square_to_cosine_hemisphere(sampler.next_2d()));
+            let Some(hit) = reference.intersect(&Ray::new(p, axis)) else { continue };
+            let frame = Frame::from_normal(axis);
+            for _ in 0..16 {
+                let dir = frame.to_world(square_to_uniform_cone(sampler.next_2d(), cos_cone));
+                visibility.push(Ray::segment(p, dir, hit.t * (1.0 - 1e-3)));
             }
         }
-        bundles.truncate(count);
     }
-    RaySets { primary, diffuse, shadow, bundles }
+    RaySets { primary, diffuse, shadow, bundles, visibility }
 }
 
-/// Mrays/s of `f` applied to `rays` in chunks of `chunk` across the pool; best of three runs.
-fn measure(pool: &rayon::ThreadPool, rays: &[Ray], chunk: usize, f: &(dyn Fn(&[Ray]) + Sync)) -> f64 {
-    let mut best = f64::INFINITY;
-    for _ in 0..3 {
-        let start = Instant::now();
-        pool.install(|| rays.par_chunks(chunk).for_each(f));
-        best = best.min(start.elapsed().as_secs_f64());
+/// One way of answering a ray set, timed in chunks across the pool.
+type Variant<'a> = &'a (dyn Fn(&[Ray]) + Sync);
+
+/// Mrays/s of each variant applied to `rays` in chunks of `chunk` across the pool. The variants run
+/// round-robin, five rounds, best round each, so a change in machine load hits all of them alike.
+fn measure(pool: &rayon::ThreadPool, rays: &[Ray], chunk: usize, variants: &[Variant]) -> Vec<f64> {
+    let mut best = vec![f64::INFINITY; variants.len()];
+    for _ in 0..5 {
+        for (f, b) in variants.iter().zip(best.iter_mut()) {
+            let start = Instant::now();
+            pool.install(|| rays.par_chunks(chunk).for_each(f));
+            *b = b.min(start.elapsed().as_secs_f64());
+        }
     }
-    rays.len() as f64 / best.max(1e-9) * 1e-6
+    best.iter().map(|t| rays.len() as f64 / t.max(1e-9) * 1e-6).collect()
+}
+
+/// Single rays through the wrapper, counting hits: the counterpart of
+/// [`EmbreeScene::raw_intersect1_loop`]. Never inlined, so callgrind can count it on its own.
+#[inline(never)]
+pub fn wrapper_intersect1_loop(embree: &EmbreeScene, rays: &[Ray]) -> usize {
+    rays.iter().filter(|r| embree.intersect(r).is_some()).count()
+}
+
+/// Rays per block of the paired A/B timings: long enough to time (~0.1–1 ms), short enough for
+/// hundreds of blocks per ray set; a multiple of every bundle size.
+const AB_BLOCK: usize = 2048;
+
+/// How much slower `a` is than `b` on the same rays, on the calling thread: each block of rays first
+/// runs once untimed (so both see warm caches), then `a`, `b`, `b`, `a`; the block's ratio is a's
+/// total time over b's. Returns the median over blocks and the number of blocks. Load changes
+/// slower than a block cancel out of each ratio, and the median drops blocks hit by preemption.
+fn paired_ratio(rays: &[Ray], a: &dyn Fn(&[Ray]), b: &dyn Fn(&[Ray])) -> (f64, usize) {
+    let time = |f: &dyn Fn(&[Ray]), block: &[Ray]| {
+        let start = Instant::now();
+        f(block);
+        start.elapsed().as_secs_f64()
+    };
+    let mut ratios: Vec<f64> = rays
+        .chunks_exact(AB_BLOCK)
+        .map(|block| {
+            b(block);
+            let (a1, b1, b2, a2) = (time(a, block), time(b, block), time(b, block), time(a, block));
+            (a1 + a2) / (b1 + b2).max(1e-12)
+        })
+        .collect();
+    if ratios.is_empty() {
+        return (f64::NAN, 0);
+    }
+    ratios.sort_by(f64::total_cmp);
+    (ratios[ratios.len() / 2], ratios.len())
 }
 
 fn resident_bytes() -> usize {
@@ -235,20 +306,36 @@ pub fn bench_rays(scene: &BenchScene, count: usize, pool: &rayon::ThreadPool) ->
     let sets = make_ray_sets(scene, &embree, count);
     let _ = writeln!(
         out,
-        "Mrays/s    {:<22} {:>9} {:>9} {:>9} {:>9} {:>9} {:>10} {:>10} {:>9}",
-        "ray set", "emb-1", "emb-pkt", "emb-strm", "raw-1", "bvh-1", "best/bvh", "pkt/1", "overhead"
+        "Mrays/s    {:<24} {:>7} {:>7} {:>7} {:>7} {:>7} {:>7} {:>7} {:>8} {:>8} {:>9}",
+        "ray set",
+        "emb-1",
+        "pkt-inc",
+        "pkt-coh",
+        "str-inc",
+        "str-coh",
+        "batch",
+        "bvh-1",
+        "batch/1",
+        "best/bvh",
+        "overhead"
     );
-    for (label, rays, occlusion, chunk) in [
-        ("primary (coherent)", &sets.primary, false, 256),
-        ("diffuse (incoherent)", &sets.diffuse, false, 256),
-        ("shadow (occlusion)", &sets.shadow, true, 256),
-        ("corrector bundles x16", &sets.bundles, false, BUNDLE),
-    ] {
+    let mut rows: Vec<(String, &[Ray], bool, usize)> = vec![
+        ("primary (coherent)".into(), &sets.primary, false, 256),
+        ("diffuse (incoherent)".into(), &sets.diffuse, false, 256),
+        ("shadow (occlusion)".into(), &sets.shadow, true, 256),
+    ];
+    for (size, rays) in &sets.bundles {
+        rows.push((format!("corrector bundles x{size}"), rays, false, *size));
+    }
+    rows.push(("corrector visibility x16".into(), &sets.visibility, true, 16));
+    let mut ab_blocks = 0;
+    let mut overhead_sides = Vec::new();
+    let embree = &embree;
+    for (label, rays, occlusion, chunk) in rows {
         if rays.is_empty() {
             continue;
         }
-        let coherent = label.starts_with("primary") || label.starts_with("corrector");
-        let single = measure(pool, rays, chunk, &|c| {
+        let single = |c: &[Ray]| {
             for r in c {
                 if occlusion {
                     std::hint::black_box(embree.occluded(r));
@@ -256,8 +343,34 @@ pub fn bench_rays(scene: &BenchScene, count: usize, pool: &rayon::ThreadPool) ->
                     std::hint::black_box(embree.intersect(r));
                 }
             }
-        });
-        let packets = measure(pool, rays, chunk, &|c| {
+        };
+        let packets = |hint: PacketHint| {
+            move |c: &[Ray]| {
+                if occlusion {
+                    let mut o = vec![false; c.len()];
+                    embree.occluded_packets(c, &mut o, hint);
+                    std::hint::black_box(o);
+                } else {
+                    let mut h = vec![None; c.len()];
+                    embree.intersect_packets(c, &mut h, hint);
+                    std::hint::black_box(h);
+                }
+            }
+        };
+        let stream = |coherent: bool| {
+            move |c: &[Ray]| {
+                if occlusion {
+                    let mut o = vec![false; c.len()];
+                    embree.occluded_stream(c, &mut o, coherent);
+                    std::hint::black_box(o);
+                } else {
+                    let mut h = vec![None; c.len()];
+                    embree.intersect_stream(c, &mut h, coherent);
+                    std::hint::black_box(h);
+                }
+            }
+        };
+        let batch = |c: &[Ray]| {
             if occlusion {
                 let mut o = vec![false; c.len()];
                 embree.occluded_batch(c, &mut o);
@@ -267,27 +380,14 @@ pub fn bench_rays(scene: &BenchScene, count: usize, pool: &rayon::ThreadPool) ->
                 embree.intersect_batch(c, &mut h);
                 std::hint::black_box(h);
             }
-        });
-        let stream = measure(pool, rays, chunk, &|c| {
-            if occlusion {
-                let mut o = vec![false; c.len()];
-                embree.occluded_stream(c, &mut o, coherent);
-                std::hint::black_box(o);
-            } else {
-                let mut h = vec![None; c.len()];
-                embree.intersect_stream(c, &mut h, coherent);
-                std::hint::black_box(h);
-            }
-        });
-        // The raw loop and the wrapper's single-ray path do the same work only for intersection.
-        let raw = if occlusion {
-            f64::NAN
-        } else {
-            measure(pool, rays, chunk, &|c| {
-                std::hint::black_box(embree.raw_intersect1_loop(c));
-            })
         };
-        let rust = measure(pool, rays, chunk, &|c| {
+        // The batch API over `c`, handed chunks of `chunk` rays as the timed runs do.
+        let batch_in = |chunk: usize, c: &[Ray]| {
+            for c in c.chunks(chunk) {
+                batch(c);
+            }
+        };
+        let rust = |c: &[Ray]| {
             for r in c {
                 if occlusion {
                     std::hint::black_box(bvh.occluded(r));
@@ -295,18 +395,52 @@ pub fn bench_rays(scene: &BenchScene, count: usize, pool: &rayon::ThreadPool) ->
                     std::hint::black_box(bvh.intersect(r));
                 }
             }
-        });
-        let best = single.max(packets).max(stream);
-        let overhead =
-            if raw.is_nan() { "-".to_string() } else { format!("{:+.1}%", 100.0 * (raw / single - 1.0)) };
-        let _ = writeln!(
-            out,
-            "           {label:<22} {single:>9.2} {packets:>9.2} {stream:>9.2} {raw:>9.2} {rust:>9.2} {:>9.2}x {:>9.2}x {overhead:>9}",
-            best / rust,
-            packets / single
-        );
+        };
+        let (pkt_inc, pkt_coh) = (packets(PacketHint::Incoherent), packets(PacketHint::Coherent));
+        let (str_inc, str_coh) = (stream(false), stream(true));
+        let speeds =
+            measure(pool, rays, chunk, &[&single, &pkt_inc, &pkt_coh, &str_inc, &str_coh, &batch, &rust]);
+        let best = speeds[..6].iter().copied().fold(0.0, f64::max);
+        // Batch over single rays, and (for intersection) the wrapper over the bare bindings, as paired
+        // per-block ratios on one thread; the throughput columns above are only best-of-five.
+        let (single_over_batch, blocks) =
+            pool.install(|| paired_ratio(rays, &single, &|c| batch_in(chunk, c)));
+        ab_blocks = ab_blocks.max(blocks);
+        let overhead = if occlusion {
+            "-".to_string()
+        } else {
+            let wrapper = |c: &[Ray]| {
+                std::hint::black_box(wrapper_intersect1_loop(embree, c));
+            };
+            let raw = |c: &[Ray]| {
+                std::hint::black_box(embree.raw_intersect1_loop(c));
+            };
+            // Measured in both orders and combined (geometric mean), so any bias from a side's
+            // position in the A, B, B, A pattern cancels; the two one-sided figures show its size.
+            let (forward, _) = pool.install(|| paired_ratio(rays, &wrapper, &raw));
+            let (backward, _) = pool.install(|| paired_ratio(rays, &raw, &wrapper));
+            overhead_sides.push((label.clone(), forward, 1.0 / backward));
+            format!("{:+.1}%", 100.0 * ((forward / backward).sqrt() - 1.0))
+        };
+        let _ = write!(out, "           {label:<24}");
+        for v in &speeds {
+            let _ = write!(out, " {v:>7.2}");
+        }
+        let _ = writeln!(out, " {single_over_batch:>7.2}x {:>7.2}x {overhead:>9}", best / speeds[6]);
     }
-    let _ = writeln!(out, "           emb-1 single rays through the wrapper, emb-pkt {}-wide packets, emb-strm rtcIntersect1M/rtcOccluded1M,", embree.packet_width());
-    let _ = writeln!(out, "           raw-1 rtcIntersect1 straight from the bindings; overhead = wrapper time over raw time - 1");
+    let _ = writeln!(
+        out,
+        "           emb-1 single rays through the wrapper; pkt-inc/pkt-coh {w}-wide packets with the incoherent/coherent hint;\n\
+         \x20          str-inc/str-coh rtcIntersect1M/rtcOccluded1M with either hint; batch the batch API (packets, coherent hint\n\
+         \x20          for packets sharing one origin); bvh-1 the Rust BVH; batch/1 (single-ray time over batch time) and overhead\n\
+         \x20          (wrapper over raw rtcIntersect1 time - 1, geometric mean of both A/B orders) are medians of {} paired {AB_BLOCK}-ray blocks on one thread",
+        ab_blocks,
+        w = embree.packet_width(),
+    );
+    let _ = write!(out, "overhead   one-sided (wrapper as A / as B):");
+    for (label, forward, backward) in &overhead_sides {
+        let _ = write!(out, "  {label} {:+.1}%/{:+.1}%", 100.0 * (forward - 1.0), 100.0 * (backward - 1.0));
+    }
+    let _ = writeln!(out);
     Ok(out)
 }

@@ -4,6 +4,7 @@
 
 mod ffi;
 
+use std::borrow::Borrow;
 use std::ffi::{c_char, c_int, c_void, CStr};
 use std::ptr;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -35,12 +36,13 @@ unsafe impl Sync for EmbreeScene {}
 impl EmbreeScene {
     /// Builds the BVH for `meshes` (world space). Fails with a message naming the mesh and element on
     /// non-finite vertices or out-of-range indices, and with Embree's own message on device errors.
-    pub fn build(meshes: &[TriangleMesh]) -> anyhow::Result<EmbreeScene> {
+    /// Takes owned meshes, references or `Arc`s alike, so callers need not copy their meshes.
+    pub fn build<M: Borrow<TriangleMesh>>(meshes: &[M]) -> anyhow::Result<EmbreeScene> {
         if meshes.len() >= ffi::RTC_INVALID_GEOMETRY_ID as usize {
             bail!("Embree: {} meshes exceed the geometry id range", meshes.len());
         }
         for (index, mesh) in meshes.iter().enumerate() {
-            validate_mesh(index, mesh)?;
+            validate_mesh(index, mesh.borrow())?;
         }
 
         let device = Device::new()?;
@@ -59,6 +61,7 @@ impl EmbreeScene {
         device.check("setting scene flags")?;
 
         for (index, mesh) in meshes.iter().enumerate() {
+            let mesh = mesh.borrow();
             if mesh.indices.is_empty() {
                 continue;
             }
@@ -91,73 +94,88 @@ impl EmbreeScene {
     }
 
     /// Closest hit of `ray` in `(tmin, tmax)` (see [`RayQuery::intersect`]).
+    // The per-ray path is kept to what `rtcIntersect1` needs: one combined validity test, the ray
+    // written straight into Embree's struct, a context built from constants (three stores), and the
+    // hit read back; `#[inline]` lets callers in other modules fold it into their loops.
+    #[inline]
     pub fn intersect(&self, ray: &Ray) -> Option<Hit> {
-        let prepared = PreparedRay::new(ray)?;
-        let mut rayhit = ffi::RTCRayHit {
-            ray: prepared.to_rtc_ray(),
-            hit: ffi::RTCHit {
-                geomID: ffi::RTC_INVALID_GEOMETRY_ID,
-                primID: ffi::RTC_INVALID_GEOMETRY_ID,
-                instID: [ffi::RTC_INVALID_GEOMETRY_ID; ffi::RTC_MAX_INSTANCE_LEVEL_COUNT as usize],
-                ..Default::default()
-            },
-        };
-        let mut context = new_context();
+        let mut rayhit = ffi::RTCRayHit { ray: rtc_ray(ray)?, hit: no_hit() };
+        let mut context = new_context(ffi::RTC_INTERSECT_CONTEXT_FLAG_INCOHERENT);
         // SAFETY: the scene is committed; `rayhit` and `context` are valid, properly aligned
         // (RTCRayHit is align(16) by its bindgen repr) and live for the call. The ray was checked finite.
         unsafe { ffi::rtcIntersect1(self.scene.0, &mut context, &mut rayhit) };
         self.debug_check();
-        (rayhit.hit.geomID != ffi::RTC_INVALID_GEOMETRY_ID).then_some(Hit {
-            t: rayhit.ray.tfar,
-            geom_id: rayhit.hit.geomID,
-            prim_id: rayhit.hit.primID,
-            u: rayhit.hit.u,
-            v: rayhit.hit.v,
-        })
+        hit_of(&rayhit)
     }
 
     /// True if anything lies on `ray` in `(tmin, tmax)`.
+    #[inline]
     pub fn occluded(&self, ray: &Ray) -> bool {
-        let Some(prepared) = PreparedRay::new(ray) else {
+        let Some(mut rtc) = rtc_ray(ray) else {
             return false;
         };
-        let mut rtc_ray = prepared.to_rtc_ray();
-        let mut context = new_context();
-        // SAFETY: as in `intersect`; rtcOccluded1 only writes `rtc_ray.tfar`.
-        unsafe { ffi::rtcOccluded1(self.scene.0, &mut context, &mut rtc_ray) };
+        let mut context = new_context(ffi::RTC_INTERSECT_CONTEXT_FLAG_INCOHERENT);
+        // SAFETY: as in `intersect`; rtcOccluded1 only writes `rtc.tfar`.
+        unsafe { ffi::rtcOccluded1(self.scene.0, &mut context, &mut rtc) };
         self.debug_check();
         // Embree marks an occluded ray by setting tfar to -inf.
-        rtc_ray.tfar == f32::NEG_INFINITY
+        rtc.tfar == f32::NEG_INFINITY
     }
 
-    /// Closest hits for `rays`, in packets of [`Self::packet_width`]. Processes
-    /// `min(rays.len(), hits.len())` rays; the two lengths should be equal.
+    /// Closest hits for `rays` (`hits.len()` should equal `rays.len()`; the shorter length is
+    /// processed, as with the trait's default methods), by the strategy
+    /// `hslt bench rays` measured fastest on every ray set (docs/benchmarks.md): packets of
+    /// [`Self::packet_width`] rays, with Embree's coherent (frustum) traversal for packets whose rays
+    /// share one origin — camera rays, manifold-corrector bundles — and its hybrid packet/single-ray
+    /// traversal otherwise.
     pub fn intersect_batch(&self, rays: &[Ray], hits: &mut [Option<Hit>]) {
-        debug_assert_eq!(rays.len(), hits.len(), "intersect_batch: length mismatch");
+        self.intersect_packets(rays, hits, PacketHint::SharedOrigin);
+    }
+
+    /// Occlusion for `rays` (`occluded.len()` should equal `rays.len()`); same strategy as
+    /// [`Self::intersect_batch`].
+    pub fn occluded_batch(&self, rays: &[Ray], occluded: &mut [bool]) {
+        self.occluded_packets(rays, occluded, PacketHint::SharedOrigin);
+    }
+
+    /// Closest hits in packets of [`Self::packet_width`] with the given coherence hint (single
+    /// rays with one shared context when this Embree has no packet kernels).
+    pub fn intersect_packets(&self, rays: &[Ray], hits: &mut [Option<Hit>], hint: PacketHint) {
+        debug_assert_eq!(rays.len(), hits.len(), "intersect_packets: length mismatch");
         match self.packet_width {
-            16 => self.intersect_packets16(rays, hits),
-            8 => self.intersect_packets8(rays, hits),
-            4 => self.intersect_packets4(rays, hits),
+            16 => self.intersect_packets16(rays, hits, hint),
+            8 => self.intersect_packets8(rays, hits, hint),
+            4 => self.intersect_packets4(rays, hits, hint),
             _ => {
+                let mut context = new_context(ffi::RTC_INTERSECT_CONTEXT_FLAG_INCOHERENT);
                 for (ray, hit) in rays.iter().zip(hits.iter_mut()) {
-                    *hit = self.intersect(ray);
+                    *hit = rtc_ray(ray).and_then(|ray| {
+                        let mut rayhit = ffi::RTCRayHit { ray, hit: no_hit() };
+                        // SAFETY: as in `intersect`; the context is reused, which Embree allows.
+                        unsafe { ffi::rtcIntersect1(self.scene.0, &mut context, &mut rayhit) };
+                        hit_of(&rayhit)
+                    });
                 }
             }
         }
         self.debug_check();
     }
 
-    /// Occlusion for `rays`, in packets of [`Self::packet_width`]. Processes
-    /// `min(rays.len(), occluded.len())` rays; the two lengths should be equal.
-    pub fn occluded_batch(&self, rays: &[Ray], occluded: &mut [bool]) {
-        debug_assert_eq!(rays.len(), occluded.len(), "occluded_batch: length mismatch");
+    /// Occlusion in packets of [`Self::packet_width`] with the given coherence hint.
+    pub fn occluded_packets(&self, rays: &[Ray], occluded: &mut [bool], hint: PacketHint) {
+        debug_assert_eq!(rays.len(), occluded.len(), "occluded_packets: length mismatch");
         match self.packet_width {
-            16 => self.occluded_packets16(rays, occluded),
-            8 => self.occluded_packets8(rays, occluded),
-            4 => self.occluded_packets4(rays, occluded),
+            16 => self.occluded_packets16(rays, occluded, hint),
+            8 => self.occluded_packets8(rays, occluded, hint),
+            4 => self.occluded_packets4(rays, occluded, hint),
             _ => {
+                let mut context = new_context(ffi::RTC_INTERSECT_CONTEXT_FLAG_INCOHERENT);
                 for (ray, o) in rays.iter().zip(occluded.iter_mut()) {
-                    *o = self.occluded(ray);
+                    *o = rtc_ray(ray).is_some_and(|mut rtc| {
+                        // SAFETY: as in `occluded`; the context is reused, which Embree allows.
+                        unsafe { ffi::rtcOccluded1(self.scene.0, &mut context, &mut rtc) };
+                        rtc.tfar == f32::NEG_INFINITY
+                    });
                 }
             }
         }
@@ -182,25 +200,16 @@ impl EmbreeScene {
     /// Closest hits through Embree's stream API: the rays go in one array and Embree regroups them
     /// into packets itself. `coherent` sets the context hint. Invalid rays get `None`.
     pub fn intersect_stream(&self, rays: &[Ray], hits: &mut [Option<Hit>], coherent: bool) {
+        debug_assert_eq!(rays.len(), hits.len(), "intersect_stream: length mismatch");
         let mut stream: Vec<ffi::RTCRayHit> = Vec::with_capacity(rays.len());
         let mut valid = Vec::with_capacity(rays.len());
         for ray in rays {
-            let prepared = PreparedRay::new(ray);
-            valid.push(prepared.is_some());
+            let rtc = rtc_ray(ray);
+            valid.push(rtc.is_some());
             // An invalid ray becomes an empty interval, which Embree skips.
-            let rtc_ray = prepared.map_or(
-                ffi::RTCRay { tnear: 1.0, tfar: 0.0, dir_z: 1.0, mask: u32::MAX, ..Default::default() },
-                PreparedRay::to_rtc_ray,
-            );
-            stream.push(ffi::RTCRayHit {
-                ray: rtc_ray,
-                hit: ffi::RTCHit { geomID: ffi::RTC_INVALID_GEOMETRY_ID, ..Default::default() },
-            });
+            stream.push(ffi::RTCRayHit { ray: rtc.unwrap_or(EMPTY_RAY), hit: no_hit() });
         }
-        let mut context = new_context();
-        if coherent {
-            context.flags = ffi::RTC_INTERSECT_CONTEXT_FLAG_COHERENT;
-        }
+        let mut context = new_context(coherence_flag(coherent));
         // SAFETY: the scene is committed; `stream` holds `rays.len()` initialised, aligned RTCRayHit
         // structs laid out with their own size as stride, and lives for the call.
         unsafe {
@@ -214,31 +223,15 @@ impl EmbreeScene {
         };
         self.debug_check();
         for ((rh, ok), hit) in stream.iter().zip(valid).zip(hits.iter_mut()) {
-            *hit = (ok && rh.hit.geomID != ffi::RTC_INVALID_GEOMETRY_ID).then_some(Hit {
-                t: rh.ray.tfar,
-                geom_id: rh.hit.geomID,
-                prim_id: rh.hit.primID,
-                u: rh.hit.u,
-                v: rh.hit.v,
-            });
+            *hit = if ok { hit_of(rh) } else { None };
         }
     }
 
     /// Occlusion through `rtcOccluded1M` (see [`Self::intersect_stream`]).
     pub fn occluded_stream(&self, rays: &[Ray], occluded: &mut [bool], coherent: bool) {
-        let mut stream: Vec<ffi::RTCRay> = rays
-            .iter()
-            .map(|ray| {
-                PreparedRay::new(ray).map_or(
-                    ffi::RTCRay { tnear: 1.0, tfar: 0.0, dir_z: 1.0, mask: u32::MAX, ..Default::default() },
-                    PreparedRay::to_rtc_ray,
-                )
-            })
-            .collect();
-        let mut context = new_context();
-        if coherent {
-            context.flags = ffi::RTC_INTERSECT_CONTEXT_FLAG_COHERENT;
-        }
+        debug_assert_eq!(rays.len(), occluded.len(), "occluded_stream: length mismatch");
+        let mut stream: Vec<ffi::RTCRay> = rays.iter().map(|ray| rtc_ray(ray).unwrap_or(EMPTY_RAY)).collect();
+        let mut context = new_context(coherence_flag(coherent));
         // SAFETY: as in `intersect_stream`, with RTCRay elements.
         unsafe {
             ffi::rtcOccluded1M(
@@ -258,8 +251,10 @@ impl EmbreeScene {
     /// The baseline for the wrapper's overhead: `rtcIntersect1` on each ray straight from the
     /// bindings, with no validation or conversion to `Hit`. Returns the number of hits. The rays
     /// must be finite with `0 <= tmin < tmax` (unchecked input only yields misses, never UB).
+    // Never inlined, so callgrind can count its instructions on their own (`--toggle-collect`).
+    #[inline(never)]
     pub fn raw_intersect1_loop(&self, rays: &[Ray]) -> usize {
-        let mut context = new_context();
+        let mut context = new_context(ffi::RTC_INTERSECT_CONTEXT_FLAG_INCOHERENT);
         let mut hits = 0;
         for ray in rays {
             let mut rayhit = ffi::RTCRayHit {
@@ -288,29 +283,36 @@ impl EmbreeScene {
     }
 }
 
-/// One packet kernel per SIMD width; the RTCRayHitN/RTCRayN structs differ only in lane count.
+/// One packet kernel per SIMD width; the RTCRayHitN/RTCRayN structs differ only in lane count. The
+/// packet struct and the context live across the whole batch; only the lanes and the valid mask are
+/// rewritten per packet (stale data in masked-off lanes is never read by Embree).
 macro_rules! packet_kernels {
     ($lanes:literal, $intersect:ident, $occluded:ident, $RayHitN:ty, $RayN:ty,
      $rtc_intersect:path, $rtc_occluded:path) => {
         impl EmbreeScene {
-            fn $intersect(&self, rays: &[Ray], hits: &mut [Option<Hit>]) {
-                let mut context = new_context();
+            fn $intersect(&self, rays: &[Ray], hits: &mut [Option<Hit>], hint: PacketHint) {
+                let mut context = new_context(ffi::RTC_INTERSECT_CONTEXT_FLAG_INCOHERENT);
+                let mut packet = <$RayHitN>::default();
                 for (ray_chunk, hit_chunk) in rays.chunks($lanes).zip(hits.chunks_mut($lanes)) {
-                    let mut packet = <$RayHitN>::default();
                     let mut valid = ValidMask::default();
+                    let mut origin = SharedOrigin::default();
                     for (lane, ray) in ray_chunk.iter().enumerate() {
                         packet.hit.geomID[lane] = ffi::RTC_INVALID_GEOMETRY_ID;
-                        if let Some(p) = PreparedRay::new(ray) {
+                        if let Some(r) = rtc_ray(ray) {
                             valid.0[lane] = -1;
-                            set_lane!(packet.ray, lane, p);
+                            origin.add(ray.origin);
+                            set_lane!(packet.ray, lane, r);
                         }
                     }
-                    if valid.any() {
-                        // SAFETY: the scene is committed; `valid` is 64-byte aligned with at least
-                        // $lanes entries, `packet` is aligned by its bindgen repr, inactive lanes are
-                        // masked off, and every active lane holds a finite ray.
-                        unsafe { $rtc_intersect(valid.0.as_ptr(), self.scene.0, &mut context, &mut packet) };
+                    if origin.is_empty() {
+                        hit_chunk.fill(None);
+                        continue;
                     }
+                    context.flags = hint.flags(&origin);
+                    // SAFETY: the scene is committed; `valid` is 64-byte aligned with at least
+                    // $lanes entries, `packet` is aligned by its bindgen repr, inactive lanes are
+                    // masked off, and every active lane holds a finite ray.
+                    unsafe { $rtc_intersect(valid.0.as_ptr(), self.scene.0, &mut context, &mut packet) };
                     for (lane, hit) in hit_chunk.iter_mut().enumerate() {
                         let geom_id = packet.hit.geomID[lane];
                         *hit = (valid.0[lane] != 0 && geom_id != ffi::RTC_INVALID_GEOMETRY_ID).then(|| Hit {
@@ -324,21 +326,26 @@ macro_rules! packet_kernels {
                 }
             }
 
-            fn $occluded(&self, rays: &[Ray], occluded: &mut [bool]) {
-                let mut context = new_context();
+            fn $occluded(&self, rays: &[Ray], occluded: &mut [bool], hint: PacketHint) {
+                let mut context = new_context(ffi::RTC_INTERSECT_CONTEXT_FLAG_INCOHERENT);
+                let mut packet = <$RayN>::default();
                 for (ray_chunk, out_chunk) in rays.chunks($lanes).zip(occluded.chunks_mut($lanes)) {
-                    let mut packet = <$RayN>::default();
                     let mut valid = ValidMask::default();
+                    let mut origin = SharedOrigin::default();
                     for (lane, ray) in ray_chunk.iter().enumerate() {
-                        if let Some(p) = PreparedRay::new(ray) {
+                        if let Some(r) = rtc_ray(ray) {
                             valid.0[lane] = -1;
-                            set_lane!(packet, lane, p);
+                            origin.add(ray.origin);
+                            set_lane!(packet, lane, r);
                         }
                     }
-                    if valid.any() {
-                        // SAFETY: as for the intersect kernel of the same width.
-                        unsafe { $rtc_occluded(valid.0.as_ptr(), self.scene.0, &mut context, &mut packet) };
+                    if origin.is_empty() {
+                        out_chunk.fill(false);
+                        continue;
                     }
+                    context.flags = hint.flags(&origin);
+                    // SAFETY: as for the intersect kernel of the same width.
+                    unsafe { $rtc_occluded(valid.0.as_ptr(), self.scene.0, &mut context, &mut packet) };
                     for (lane, out) in out_chunk.iter_mut().enumerate() {
                         *out = valid.0[lane] != 0 && packet.tfar[lane] == f32::NEG_INFINITY;
                     }
@@ -349,20 +356,20 @@ macro_rules! packet_kernels {
 }
 
 macro_rules! set_lane {
-    ($ray:expr, $lane:expr, $p:expr) => {{
-        let (lane, p) = ($lane, &$p);
-        $ray.org_x[lane] = p.origin.x;
-        $ray.org_y[lane] = p.origin.y;
-        $ray.org_z[lane] = p.origin.z;
-        $ray.dir_x[lane] = p.dir.x;
-        $ray.dir_y[lane] = p.dir.y;
-        $ray.dir_z[lane] = p.dir.z;
-        $ray.tnear[lane] = p.tnear;
-        $ray.tfar[lane] = p.tfar;
-        $ray.time[lane] = 0.0;
-        $ray.mask[lane] = u32::MAX;
-        $ray.id[lane] = 0;
-        $ray.flags[lane] = 0;
+    ($ray:expr, $lane:expr, $r:expr) => {{
+        let (lane, r) = ($lane, &$r);
+        $ray.org_x[lane] = r.org_x;
+        $ray.org_y[lane] = r.org_y;
+        $ray.org_z[lane] = r.org_z;
+        $ray.dir_x[lane] = r.dir_x;
+        $ray.dir_y[lane] = r.dir_y;
+        $ray.dir_z[lane] = r.dir_z;
+        $ray.tnear[lane] = r.tnear;
+        $ray.tfar[lane] = r.tfar;
+        $ray.time[lane] = r.time;
+        $ray.mask[lane] = r.mask;
+        $ray.id[lane] = r.id;
+        $ray.flags[lane] = r.flags;
     }};
 }
 
@@ -404,15 +411,62 @@ impl RayQuery for EmbreeScene {
     fn occluded(&self, ray: &Ray) -> bool {
         EmbreeScene::occluded(self, ray)
     }
-    // Measured with `hslt bench rays` (docs/benchmarks.md): for closest hits the stream call with the
-    // coherence hint beat 8-wide packets on primary rays (1.3–2.1×) and corrector bundles (1.2–1.35×)
-    // on every scene and tied on diffuse rays; for occlusion, packets won on the small scene (1.65×)
-    // and lost on the large one (0.8×), so occlusion keeps the packets.
     fn intersect_batch(&self, rays: &[Ray], hits: &mut [Option<Hit>]) {
-        EmbreeScene::intersect_stream(self, rays, hits, true)
+        EmbreeScene::intersect_batch(self, rays, hits)
     }
     fn occluded_batch(&self, rays: &[Ray], occluded: &mut [bool]) {
         EmbreeScene::occluded_batch(self, rays, occluded)
+    }
+}
+
+/// The coherence hint the packet kernels give Embree. With the incoherent hint Embree's 8-wide packet
+/// traversal falls back to single rays as soon as 7 or fewer lanes are active at a node (for 8-wide
+/// BVHs), so a packet costs about as much as its rays one by one; the coherent hint selects the
+/// frustum traversal, which tests each node once against the whole packet.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PacketHint {
+    /// Always `RTC_INTERSECT_CONTEXT_FLAG_INCOHERENT`.
+    Incoherent,
+    /// Always `RTC_INTERSECT_CONTEXT_FLAG_COHERENT`.
+    Coherent,
+    /// Coherent for packets whose valid rays share one origin (pinhole camera rays, corrector
+    /// bundles from one vertex), incoherent otherwise.
+    SharedOrigin,
+}
+
+impl PacketHint {
+    #[inline]
+    fn flags(self, origin: &SharedOrigin) -> ffi::RTCIntersectContextFlags {
+        let coherent = match self {
+            PacketHint::Incoherent => false,
+            PacketHint::Coherent => true,
+            PacketHint::SharedOrigin => origin.shared,
+        };
+        coherence_flag(coherent)
+    }
+}
+
+/// Tracks whether the valid rays of one packet so far all start at the same point.
+#[derive(Default)]
+struct SharedOrigin {
+    first: Option<Vec3>,
+    shared: bool,
+}
+
+impl SharedOrigin {
+    #[inline]
+    fn add(&mut self, origin: Vec3) {
+        match self.first {
+            None => {
+                self.first = Some(origin);
+                self.shared = true;
+            }
+            Some(first) => self.shared &= first == origin,
+        }
+    }
+
+    fn is_empty(&self) -> bool {
+        self.first.is_none()
     }
 }
 
@@ -422,54 +476,88 @@ impl RayQuery for EmbreeScene {
 #[derive(Default)]
 struct ValidMask([c_int; 16]);
 
-impl ValidMask {
-    fn any(&self) -> bool {
-        self.0.iter().any(|&v| v != 0)
+/// `ray` as Embree's struct, or `None` when it cannot hit anything or would be invalid input for
+/// Embree (see [`super::query_interval`]).
+// Embree accepts tnear < t <= tfar, and its t carries a few ulps of error (it multiplies by an
+// approximate reciprocal: a hit at exactly t = 1 comes back as 1 - 2^-24), so the ends of the interval
+// only hold up to that precision. Shadow rays must shrink their segment by a relative epsilon anyway;
+// shifting tfar by an ulp here would promise more than Embree keeps.
+#[inline]
+fn rtc_ray(ray: &Ray) -> Option<ffi::RTCRay> {
+    let (tnear, tfar) = super::query_interval(ray)?;
+    Some(ffi::RTCRay {
+        org_x: ray.origin.x,
+        org_y: ray.origin.y,
+        org_z: ray.origin.z,
+        tnear,
+        dir_x: ray.dir.x,
+        dir_y: ray.dir.y,
+        dir_z: ray.dir.z,
+        time: 0.0,
+        tfar,
+        mask: u32::MAX,
+        id: 0,
+        flags: 0,
+    })
+}
+
+/// Stands in for invalid rays in streams: an empty interval, which Embree skips.
+const EMPTY_RAY: ffi::RTCRay = ffi::RTCRay {
+    org_x: 0.0,
+    org_y: 0.0,
+    org_z: 0.0,
+    tnear: 1.0,
+    dir_x: 0.0,
+    dir_y: 0.0,
+    dir_z: 1.0,
+    time: 0.0,
+    tfar: 0.0,
+    mask: u32::MAX,
+    id: 0,
+    flags: 0,
+};
+
+/// The hit record before a query: Embree writes it only on a hit, and `geomID` tells which.
+#[inline]
+fn no_hit() -> ffi::RTCHit {
+    ffi::RTCHit {
+        geomID: ffi::RTC_INVALID_GEOMETRY_ID,
+        primID: ffi::RTC_INVALID_GEOMETRY_ID,
+        instID: [ffi::RTC_INVALID_GEOMETRY_ID; ffi::RTC_MAX_INSTANCE_LEVEL_COUNT as usize],
+        ..Default::default()
     }
 }
 
-/// A ray in Embree's terms, or `None` when it cannot hit anything or would be invalid input for
-/// Embree (non-finite origin/direction, zero direction, NaN or empty interval).
-#[derive(Clone, Copy, Debug, PartialEq)]
-struct PreparedRay {
-    origin: Vec3,
-    dir: Vec3,
-    tnear: f32,
-    tfar: f32,
+#[inline]
+fn hit_of(rayhit: &ffi::RTCRayHit) -> Option<Hit> {
+    (rayhit.hit.geomID != ffi::RTC_INVALID_GEOMETRY_ID).then_some(Hit {
+        t: rayhit.ray.tfar,
+        geom_id: rayhit.hit.geomID,
+        prim_id: rayhit.hit.primID,
+        u: rayhit.hit.u,
+        v: rayhit.hit.v,
+    })
 }
 
-impl PreparedRay {
-    fn new(ray: &Ray) -> Option<PreparedRay> {
-        // Embree accepts tnear < t <= tfar, and its t carries a few ulps of error (it multiplies by
-        // an approximate reciprocal: a hit at exactly t = 1 comes back as 1 - 2^-24), so the ends of
-        // the interval only hold up to that precision. Shadow rays must shrink their segment by a
-        // relative epsilon anyway; shifting tfar by an ulp here would promise more than Embree keeps.
-        let (tnear, tfar) = super::query_interval(ray)?;
-        Some(PreparedRay { origin: ray.origin, dir: ray.dir, tnear, tfar })
-    }
-
-    fn to_rtc_ray(self) -> ffi::RTCRay {
-        ffi::RTCRay {
-            org_x: self.origin.x,
-            org_y: self.origin.y,
-            org_z: self.origin.z,
-            tnear: self.tnear,
-            dir_x: self.dir.x,
-            dir_y: self.dir.y,
-            dir_z: self.dir.z,
-            time: 0.0,
-            tfar: self.tfar,
-            mask: u32::MAX,
-            id: 0,
-            flags: 0,
-        }
+fn coherence_flag(coherent: bool) -> ffi::RTCIntersectContextFlags {
+    if coherent {
+        ffi::RTC_INTERSECT_CONTEXT_FLAG_COHERENT
+    } else {
+        ffi::RTC_INTERSECT_CONTEXT_FLAG_INCOHERENT
     }
 }
 
-fn new_context() -> ffi::RTCIntersectContext {
-    let mut context = ffi::RTCIntersectContext::default();
-    ffi::rtcInitIntersectContext(&mut context);
-    context
+/// An intersect context with the given hint and no filter or instance stack: what
+/// `rtcInitIntersectContext` builds, written inline so it costs a few stores per query.
+#[inline]
+fn new_context(flags: ffi::RTCIntersectContextFlags) -> ffi::RTCIntersectContext {
+    #[allow(clippy::needless_update)]
+    ffi::RTCIntersectContext {
+        flags,
+        filter: None,
+        instID: [ffi::RTC_INVALID_GEOMETRY_ID; ffi::RTC_MAX_INSTANCE_LEVEL_COUNT as usize],
+        ..Default::default()
+    }
 }
 
 /// Embree silently drops triangles with NaN vertices and reads out of bounds on bad indices, so such
@@ -754,9 +842,9 @@ mod tests {
     }
 
     #[test]
-    fn prepared_ray_rejects_what_embree_cannot_take() {
+    fn rtc_ray_rejects_what_embree_cannot_take() {
         let ok = ray([0.0; 3], [0.0, 0.0, 1.0], 0.0, f32::INFINITY);
-        assert!(PreparedRay::new(&ok).is_some());
+        assert!(rtc_ray(&ok).is_some());
         for bad in [
             ray([f32::NAN, 0.0, 0.0], [0.0, 0.0, 1.0], 0.0, 1.0),
             ray([0.0; 3], [0.0, f32::INFINITY, 1.0], 0.0, 1.0),
@@ -766,19 +854,41 @@ mod tests {
             ray([0.0; 3], [0.0, 0.0, 1.0], 2.0, 1.0),
             ray([0.0; 3], [0.0, 0.0, 1.0], 1.0, 1.0),
             ray([0.0; 3], [0.0, 0.0, 1.0], 0.0, 0.0),
+            ray([0.0, f32::NEG_INFINITY, 0.0], [0.0, 0.0, 1.0], 0.0, 1.0),
+            ray([0.0; 3], [f32::NAN, 0.0, 1.0], 0.0, 1.0),
+            ray([0.0; 3], [0.0, 0.0, 1.0], f32::NEG_INFINITY, f32::NEG_INFINITY),
         ] {
-            assert!(PreparedRay::new(&bad).is_none(), "{bad:?} should be rejected");
+            assert!(rtc_ray(&bad).is_none(), "{bad:?} should be rejected");
         }
     }
 
     #[test]
-    fn prepared_ray_clamps_negative_tnear() {
-        let p = PreparedRay::new(&ray([0.0; 3], [1.0, 0.0, 0.0], -3.0, 2.0)).unwrap();
+    fn rtc_ray_clamps_negative_tnear() {
+        let p = rtc_ray(&ray([0.0; 3], [1.0, 0.0, 0.0], -3.0, 2.0)).unwrap();
         assert_eq!(p.tnear, 0.0);
         assert_eq!(p.tfar, 2.0);
-        let unbounded = PreparedRay::new(&ray([0.0; 3], [1.0, 0.0, 0.0], 0.5, f32::INFINITY)).unwrap();
+        let unbounded = rtc_ray(&ray([0.0; 3], [1.0, 0.0, 0.0], 0.5, f32::INFINITY)).unwrap();
+        // Huge but finite coordinates are valid input.
+        assert!(rtc_ray(&ray([f32::MAX, 0.0, -f32::MAX], [1e-30, 0.0, 0.0], 0.0, 1.0)).is_some());
         assert_eq!(unbounded.tfar, f32::INFINITY);
         assert_eq!(unbounded.tnear, 0.5);
+    }
+
+    #[test]
+    fn shared_origin_hint_is_coherent_only_for_one_origin() {
+        let hint = PacketHint::SharedOrigin;
+        let mut origin = SharedOrigin::default();
+        assert!(origin.is_empty());
+        origin.add(Vec3::new(1.0, 2.0, 3.0));
+        origin.add(Vec3::new(1.0, 2.0, 3.0));
+        assert_eq!(hint.flags(&origin), ffi::RTC_INTERSECT_CONTEXT_FLAG_COHERENT);
+        origin.add(Vec3::new(1.0, 2.0, 3.5));
+        origin.add(Vec3::new(1.0, 2.0, 3.0));
+        assert_eq!(hint.flags(&origin), ffi::RTC_INTERSECT_CONTEXT_FLAG_INCOHERENT);
+        assert_eq!(PacketHint::Coherent.flags(&origin), ffi::RTC_INTERSECT_CONTEXT_FLAG_COHERENT);
+        let mut single = SharedOrigin::default();
+        single.add(Vec3::ZERO);
+        assert_eq!(PacketHint::Incoherent.flags(&single), ffi::RTC_INTERSECT_CONTEXT_FLAG_INCOHERENT);
     }
 
     #[test]
@@ -786,7 +896,7 @@ mod tests {
         let mask = ValidMask::default();
         assert_eq!(std::mem::align_of::<ValidMask>(), 64);
         assert_eq!((mask.0.as_ptr() as usize) % 64, 0);
-        assert!(!mask.any());
+        assert!(mask.0.iter().all(|&lane| lane == 0), "a fresh mask must have every lane off");
     }
 
     #[test]
