@@ -195,7 +195,7 @@ impl Bdpt {
             z.beta * z.emitted(scene, z.direction_to(prev))
         } else if t == 1 {
             let y = &sub.light[s - 1];
-            if !y.connectible(scene) || y.kind == crate::path::VertexKind::InfiniteLight {
+            if !y.connectible() || y.kind == crate::path::VertexKind::InfiniteLight {
                 return None;
             }
             let dir = z.direction_to(y);
@@ -215,7 +215,7 @@ impl Bdpt {
             }
             v
         } else if s == 1 {
-            if !z.connectible(scene) {
+            if !z.connectible() {
                 return None;
             }
             let y = sample_light_vertex(scene, z.p, sampler)?;
@@ -236,7 +236,7 @@ impl Bdpt {
             v
         } else {
             let y = &sub.light[s - 1];
-            if !z.connectible(scene) || !y.connectible(scene) {
+            if !z.connectible() || !y.connectible() {
                 return None;
             }
             let v = z.beta

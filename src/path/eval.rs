@@ -143,7 +143,7 @@ impl<'a> PathView<'a> {
         }
         let (a, b) = (self.get(t - 1), self.get(t));
         let camera_to_environment = a.kind == VertexKind::Camera && b.kind == VertexKind::InfiniteLight;
-        a.connectible(scene) && b.connectible(scene) && !camera_to_environment
+        a.connectible() && b.connectible() && !camera_to_environment
     }
 
     /// Density of strategy (s = n − t, t): the camera side samples x_0 … x_{t−1}, the light side the rest.

@@ -81,6 +81,8 @@ pub struct Vertex {
     /// Reached or left through a Dirac lobe (or a Dirac light position): the vertex cannot be an
     /// end of a connection edge.
     pub delta: bool,
+    /// The BSDF has a non-Dirac lobe (cached: connections ask for every pair of vertices).
+    pub smooth: bool,
     pub pdf_from_camera: f32,
     pub pdf_from_light: f32,
     /// Throughput of the sub-path up to and including the edge into this vertex: its contribution
@@ -117,6 +119,7 @@ impl Vertex {
             light: None,
             class: ScatterClass::Diffuse,
             delta: false,
+            smooth: false,
             pdf_from_camera: 1.0,
             pdf_from_light: 0.0,
             beta: Spectrum::ONE,
@@ -139,6 +142,7 @@ impl Vertex {
             light: shape.light,
             class: ScatterClass::of(shape.bsdf.as_ref()),
             delta: false,
+            smooth: shape.bsdf.lobes().has_smooth(),
             pdf_from_camera: 0.0,
             pdf_from_light: 0.0,
             beta,
@@ -165,6 +169,7 @@ impl Vertex {
             light: Some(light),
             class: ScatterClass::Diffuse,
             delta: l.is_delta(),
+            smooth: false,
             pdf_from_camera: 0.0,
             pdf_from_light: pdf,
             beta,
@@ -207,10 +212,10 @@ impl Vertex {
 
     /// True if this vertex can be the end of a connection edge: it has a non-Dirac way to scatter
     /// (or it is an endpoint that is not itself a Dirac direction).
-    pub fn connectible(&self, scene: &Scene) -> bool {
+    pub fn connectible(&self) -> bool {
         match self.kind {
             VertexKind::Camera | VertexKind::Light | VertexKind::InfiniteLight => true,
-            VertexKind::Surface => !self.delta && scene.shapes[self.shape].bsdf.lobes().has_smooth(),
+            VertexKind::Surface => !self.delta && self.smooth,
         }
     }
 

@@ -295,7 +295,8 @@ impl Builder {
         if bounds.is_empty() {
             bounds.expand(camera.position());
         }
-        let meshes: Vec<TriangleMesh> = self.shapes.iter().map(|s| (*s.mesh).clone()).collect();
+        // The backends borrow the meshes: no copy of the geometry while the structure is built.
+        let meshes: Vec<Arc<TriangleMesh>> = self.shapes.iter().map(|s| Arc::clone(&s.mesh)).collect();
         let accel = crate::accel::build(options.accel, &meshes)?;
         let radius = bounds.radius().max(1e-3);
         let light_selector = LightSelector::new(&self.lights, radius);
