@@ -515,6 +515,7 @@ mod tests {
             light: None,
             class: ScatterClass::Glossy { alpha: 0.1 },
             delta: false,
+            smooth: true,
             pdf_from_camera: 0.0,
             pdf_from_light: 0.0,
             beta: Spectrum::ONE,
