@@ -15,6 +15,7 @@ pub mod integrators;
 pub mod lights;
 pub mod path;
 pub mod render;
+pub mod report;
 pub mod sampling;
 pub mod scene;
 pub mod sensor;
