@@ -147,7 +147,7 @@ mod tests {
     #[test]
     fn svg_names_every_series_and_axis() {
         let svg = error_plot_svg(&example(), "relative MSE", "cornell").unwrap();
-        for text in ["pt", "bdpt", "relative MSE", "time (s)", "cornell", "<polyline"] {
+        for text in ["\npt\n", "\nbdpt\n", "relative MSE", "time (s)", "cornell", "<polyline"] {
             assert!(svg.contains(text), "missing {text:?}");
         }
     }
