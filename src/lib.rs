@@ -16,6 +16,7 @@ pub mod lights;
 pub mod manifold;
 pub mod path;
 pub mod render;
+pub mod report;
 pub mod sampling;
 pub mod scene;
 pub mod sensor;

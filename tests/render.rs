@@ -38,7 +38,7 @@ fn time_budget_stops_the_render() {
         spp: None,
         time_limit: Some(std::time::Duration::from_millis(300)),
         seed: 1,
-        progress: false,
+        ..Default::default()
     };
     let never = std::sync::atomic::AtomicBool::new(false);
     let output = integrator.render(&scene, &options, &never);

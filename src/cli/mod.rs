@@ -2,6 +2,7 @@
 //! arguments into load and render options and writes the outputs with their metadata.
 
 pub mod assets;
+pub mod report;
 
 use crate::accel::AccelKind;
 use crate::image::{ImageBuf, Metadata};
@@ -37,6 +38,10 @@ pub enum Command {
     /// Benchmarks: `bench pt SCENE` (path tracer) or `bench rays SCENE` (Embree vs the Rust BVH).
     #[command(subcommand)]
     Bench(BenchCommand),
+    /// Run several integrators for the same wall time and report their error against a reference.
+    Compare(report::CompareArgs),
+    /// Render a long, checkpointed reference image (EXR) that --resume continues.
+    Reference(report::ReferenceArgs),
     /// Write the man pages and shell completions into a directory (used by scripts/build-deb.sh).
     #[command(hide = true)]
     GenerateAssets(assets::GenerateAssetsArgs),
@@ -175,6 +180,8 @@ pub fn run(cli: Cli) -> anyhow::Result<i32> {
         Command::Bench(BenchCommand::Rays(args)) => run_bench_rays(args),
         Command::Bench(BenchCommand::Integrators(args)) => run_bench_integrators(args),
         Command::GenerateAssets(args) => assets::run(args),
+        Command::Compare(args) => report::run_compare(args),
+        Command::Reference(args) => report::run_reference(args),
     }
 }
 
@@ -249,6 +256,7 @@ fn run_render(args: RenderArgs) -> anyhow::Result<i32> {
         time_limit: args.time.map(Duration::from_secs_f64),
         seed: args.seed,
         progress: !args.quiet,
+        ..Default::default()
     };
     let _ = ctrlc::set_handler(|| {
         if CANCEL.swap(true, Ordering::SeqCst) {
@@ -369,7 +377,7 @@ fn run_bench(args: BenchArgs) -> anyhow::Result<i32> {
         DepthLimits { max_depth: scene.integrator.max_depth, rr_depth: scene.integrator.rr_depth },
         scene.integrator.hide_emitters,
     );
-    let options = RenderOptions { spp: Some(args.spp), time_limit: None, seed: 1, progress: false };
+    let options = RenderOptions { spp: Some(args.spp), seed: 1, ..Default::default() };
     let never = AtomicBool::new(false);
     // Warm-up pass so page faults and lazy initialisation are not measured.
     pool.install(|| integrator.render(&scene, &RenderOptions { spp: Some(1), ..options.clone() }, &never));
@@ -487,7 +495,7 @@ pub fn render_scene_film(
         DepthLimits { max_depth: scene.integrator.max_depth, rr_depth: scene.integrator.rr_depth },
         scene.integrator.hide_emitters,
     );
-    let options = RenderOptions { spp: Some(spp), time_limit: None, seed, progress: false };
+    let options = RenderOptions { spp: Some(spp), seed, ..Default::default() };
     let never = AtomicBool::new(false);
     let output = integrator.render(scene, &options, &never);
     (output.film, output.stats)

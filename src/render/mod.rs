@@ -1,32 +1,112 @@
 //! The render loop shared by all pixel integrators: passes of samples over 16×16 tiles in parallel,
 //! per-pixel random streams keyed by (seed, pixel, sample index), and accumulation in a fixed order,
 //! so the same seed and sample count give the same image for any thread count. A time budget, a
-//! cancellation flag (Ctrl-C) and a progress bar sit here, outside the integrators.
+//! cancellation flag (Ctrl-C) and a progress bar sit here, outside the integrators, and so does the
+//! snapshot hook that every integrator (pixel or Metropolis) calls to show its image at requested times.
 
 mod film;
 
 pub use film::{Film, Splat};
 
+use crate::image::ImageBuf;
 use crate::integrators::{PixelIntegrator, SampleCounters, SampleOutput};
 use crate::sampling::Sampler;
 use crate::scene::Scene;
 use crate::spectrum::Spectrum;
 use rayon::prelude::*;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 const TILE: usize = 16;
 
-/// How long and how densely to render.
-#[derive(Clone, Debug)]
+/// How long and how densely to render. `..Default::default()` fills the fields a caller does not
+/// care about (no budget: the scene's sample count; seed 0; no progress bar, snapshots or offset).
+#[derive(Clone, Debug, Default)]
 pub struct RenderOptions {
-    /// Samples per pixel to reach (the cap when a time budget is also given).
+    /// Samples per pixel to take in this run (the cap when a time budget is also given).
     pub spp: Option<u32>,
     /// Wall-clock budget.
     pub time_limit: Option<Duration>,
     pub seed: u64,
     /// Show a progress bar (only drawn on a terminal).
     pub progress: bool,
+    /// Called with the image so far at requested times (error-against-time reports, checkpoints).
+    pub snapshots: Option<SnapshotHook>,
+    /// Index of this run's first sample in every pixel's random stream: a run that continues an
+    /// earlier one of N spp passes N, so the two together take exactly the samples of one run of
+    /// N + M spp. Integrators without per-pixel sample indices (Metropolis chains) must still make
+    /// runs with different offsets statistically independent, e.g. by mixing it into their seeds.
+    pub first_sample: u32,
+}
+
+/// The state of a render at one moment, handed to a [`SnapshotHook`].
+#[derive(Clone, Debug)]
+pub struct Snapshot {
+    /// Wall time since the integrator's `render` started.
+    pub elapsed: Duration,
+    /// The image the render would return if it stopped now (same normalisation as the final film).
+    pub image: ImageBuf,
+    /// Work done so far: camera samples for pixel integrators, proposed mutations for Metropolis.
+    pub samples: u64,
+    /// Samples per pixel every pixel has reached (0 for integrators without that notion).
+    pub spp: u32,
+    /// Integrator-specific statistics, e.g. `("acceptance_rate", "0.41")` (a number in [0, 1]).
+    pub extra: Vec<(String, String)>,
+}
+
+/// Asks an integrator for snapshots of its image at given wall times.
+///
+/// Contract, for the tile loop here and for every integrator with its own loop (Metropolis chains):
+/// - `times` are offsets from the start of `Integrator::render`, ascending; the integrator keeps its
+///   units of work (passes, mutation batches) short enough that it checks the clock near each time.
+/// - After the unit of work during which a requested time passed, it calls `sink` once with the image
+///   so far; when one unit passes several times, one call stands for all of them. Use
+///   [`SnapshotClock`], which does this bookkeeping.
+/// - `sink` runs on the rendering thread while the render waits, so it should be quick; its time
+///   counts against the render's budget, equally for every integrator.
+/// - Times after the render stops (time limit, sample target, cancellation) produce no call: the
+///   caller has the final `RenderOutput` for that moment.
+#[derive(Clone)]
+pub struct SnapshotHook {
+    pub times: Vec<Duration>,
+    pub sink: Arc<dyn Fn(&Snapshot) + Send + Sync>,
+}
+
+impl std::fmt::Debug for SnapshotHook {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("SnapshotHook").field("times", &self.times).finish_non_exhaustive()
+    }
+}
+
+/// Keeps track of which requested snapshot times have been served, for integrator loops.
+#[derive(Debug)]
+pub struct SnapshotClock<'a> {
+    hook: Option<&'a SnapshotHook>,
+    next: usize,
+}
+
+impl<'a> SnapshotClock<'a> {
+    pub fn new(options: &'a RenderOptions) -> SnapshotClock<'a> {
+        SnapshotClock { hook: options.snapshots.as_ref(), next: 0 }
+    }
+
+    /// The next requested time not yet served, so loops can end a unit of work close to it.
+    pub fn next_time(&self) -> Option<Duration> {
+        self.hook.and_then(|h| h.times.get(self.next).copied())
+    }
+
+    /// Calls the sink with `make()` when a requested time has passed by `elapsed` (once for all the
+    /// times passed since the last call); `make` only runs then, so resolving the image is free
+    /// otherwise.
+    pub fn poll(&mut self, elapsed: Duration, make: impl FnOnce() -> Snapshot) {
+        let Some(hook) = self.hook else { return };
+        let passed = hook.times[self.next..].iter().take_while(|&&t| t <= elapsed).count();
+        if passed > 0 {
+            self.next += passed;
+            (hook.sink)(&make());
+        }
+    }
 }
 
 /// What happened during a render.
@@ -74,6 +154,7 @@ pub fn render(
     let rays = AtomicU64::new(0);
     let mut done_spp: u32 = 0;
     let mut pass_size: u32 = 1;
+    let mut snapshot_clock = SnapshotClock::new(options);
 
     loop {
         if let Some(t) = target {
@@ -93,7 +174,8 @@ pub fn render(
             }
         }
         let pass_start = Instant::now();
-        let first_sample = done_spp;
+        let pass_first = done_spp;
+        let first_sample = options.first_sample.saturating_add(done_spp);
         let results: Vec<Option<TileResult>> = tiles
             .par_iter()
             .map(|tile| {
@@ -133,6 +215,16 @@ pub fn render(
         }
         done_spp += pass_size;
         stats.passes += 1;
+        snapshot_clock.poll(start.elapsed(), || {
+            film.splat_scale = 1.0 / done_spp as f64;
+            Snapshot {
+                elapsed: start.elapsed(),
+                image: film.to_image(),
+                samples: stats.samples,
+                spp: done_spp,
+                extra: Vec::new(),
+            }
+        });
         if let (Some(pb), None, Some(limit)) = (&progress, target, options.time_limit) {
             pb.set_position(start.elapsed().as_millis().min(limit.as_millis()) as u64);
             pb.set_message(format!("{done_spp} spp"));
@@ -143,12 +235,18 @@ pub fn render(
         pass_size = grow.clamp(1, 64).max(1);
         if let Some(limit) = options.time_limit {
             let remaining = limit.saturating_sub(start.elapsed()).as_secs_f64();
-            let per_sample = pass_time / (done_spp - first_sample).max(1) as f64;
+            let per_sample = pass_time / (done_spp - pass_first).max(1) as f64;
             let affordable = (remaining / per_sample).floor() as u32;
             if affordable == 0 {
                 break;
             }
             pass_size = pass_size.min(affordable);
+        }
+        // End the next pass close to the next snapshot time rather than up to half a second later.
+        if let Some(next) = snapshot_clock.next_time() {
+            let until = next.saturating_sub(start.elapsed()).as_secs_f64();
+            let per_sample = pass_time / (done_spp - pass_first).max(1) as f64;
+            pass_size = pass_size.min(((until / per_sample).ceil() as u32).max(1));
         }
     }
     if let Some(pb) = progress {

@@ -1,0 +1,152 @@
+//! Image error metrics against a reference, in one place for `compare`, the reports and the tests.
+//! All are means over pixels and the three colour channels; the default is the relative MSE of the
+//! Metropolis literature, which weighs dark and bright regions alike.
+
+use crate::image::ImageBuf;
+use anyhow::bail;
+
+/// ε of the relative MSE: keeps black reference pixels from dividing by zero while barely touching
+/// pixels brighter than ~0.3 (the usual choice in MLT comparisons is 1e-2 to 1e-3).
+pub const DEFAULT_REL_EPSILON: f64 = 1e-2;
+
+/// Every metric of one image against the reference.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ErrorMetrics {
+    /// mean of (x − r)² / (r² + ε)
+    pub rel_mse: f64,
+    /// sqrt(mean of (x − r)²)
+    pub rmse: f64,
+    /// mean of |x − r|
+    pub mae: f64,
+}
+
+/// The metric a report plots (all are written to the CSV).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Metric {
+    RelMse,
+    Rmse,
+    Mae,
+}
+
+impl Metric {
+    pub fn parse(name: &str) -> Result<Metric, String> {
+        match name {
+            "relmse" | "rel-mse" => Ok(Metric::RelMse),
+            "rmse" => Ok(Metric::Rmse),
+            "mae" => Ok(Metric::Mae),
+            other => Err(format!("unknown metric '{other}' (available: relmse, rmse, mae)")),
+        }
+    }
+
+    /// A label for plot axes and tables.
+    pub fn label(self) -> &'static str {
+        match self {
+            Metric::RelMse => "relative MSE",
+            Metric::Rmse => "RMSE",
+            Metric::Mae => "mean absolute error",
+        }
+    }
+
+    pub fn of(self, m: &ErrorMetrics) -> f64 {
+        match self {
+            Metric::RelMse => m.rel_mse,
+            Metric::Rmse => m.rmse,
+            Metric::Mae => m.mae,
+        }
+    }
+}
+
+/// The value of colour channel `c` (0..3) of a pixel: grey images repeat their one channel and
+/// alpha is never compared.
+fn channel(img: &ImageBuf, pixel: usize, c: usize) -> f64 {
+    let colour_channels = if img.channels >= 3 { 3 } else { 1 };
+    img.data[pixel * img.channels + c.min(colour_channels - 1)] as f64
+}
+
+fn check_sizes(img: &ImageBuf, reference: &ImageBuf) -> anyhow::Result<()> {
+    if (img.width, img.height) != (reference.width, reference.height) {
+        bail!(
+            "image is {}x{} but the reference is {}x{}",
+            img.width,
+            img.height,
+            reference.width,
+            reference.height
+        );
+    }
+    if img.width == 0 || img.height == 0 {
+        bail!("cannot compare empty images");
+    }
+    Ok(())
+}
+
+/// All metrics of `img` against `reference` (same size; RGB, RGBA or grey), with relative-MSE `eps`.
+pub fn compute(img: &ImageBuf, reference: &ImageBuf, eps: f64) -> anyhow::Result<ErrorMetrics> {
+    check_sizes(img, reference)?;
+    let (mut rel, mut sq, mut abs) = (0.0, 0.0, 0.0);
+    let pixels = img.width * img.height;
+    for p in 0..pixels {
+        for c in 0..3 {
+            let (x, r) = (channel(img, p, c), channel(reference, p, c));
+            let d = x - r;
+            rel += d * d / (r * r + eps);
+            sq += d * d;
+            abs += d.abs();
+        }
+    }
+    let n = (pixels * 3) as f64;
+    Ok(ErrorMetrics { rel_mse: rel / n, rmse: (sq / n).sqrt(), mae: abs / n })
+}
+
+/// Per-pixel relative squared error, averaged over the colour channels (row-major): the error maps
+/// and the choice of zoomed crops in the report.
+pub fn relative_error_map(img: &ImageBuf, reference: &ImageBuf, eps: f64) -> anyhow::Result<Vec<f64>> {
+    check_sizes(img, reference)?;
+    Ok((0..img.width * img.height)
+        .map(|p| {
+            (0..3)
+                .map(|c| {
+                    let (x, r) = (channel(img, p, c), channel(reference, p, c));
+                    (x - r) * (x - r) / (r * r + eps)
+                })
+                .sum::<f64>()
+                / 3.0
+        })
+        .collect())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn constant(w: usize, h: usize, v: [f32; 3]) -> ImageBuf {
+        let mut img = ImageBuf::new(w, h, 3);
+        for px in img.data.chunks_mut(3) {
+            px.copy_from_slice(&v);
+        }
+        img
+    }
+
+    #[test]
+    fn identical_images_have_zero_error() {
+        let a = constant(4, 3, [0.2, 0.5, 3.0]);
+        assert_eq!(
+            compute(&a, &a, DEFAULT_REL_EPSILON).unwrap(),
+            ErrorMetrics { rel_mse: 0.0, rmse: 0.0, mae: 0.0 }
+        );
+    }
+
+    #[test]
+    fn grey_reference_is_compared_with_every_colour_channel() {
+        let mut grey = ImageBuf::new(2, 2, 1);
+        grey.data.fill(1.0);
+        let rgb = constant(2, 2, [1.0, 2.0, 1.0]);
+        let m = compute(&rgb, &grey, 0.0).unwrap();
+        assert!((m.rel_mse - 1.0 / 3.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn sizes_must_match() {
+        let err = compute(&constant(2, 2, [0.0; 3]), &constant(2, 3, [0.0; 3]), 0.0).unwrap_err();
+        assert!(err.to_string().contains("2x2") && err.to_string().contains("2x3"), "{err}");
+    }
+}
