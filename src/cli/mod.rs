@@ -413,7 +413,7 @@ fn run_bench_integrators(args: BenchIntegratorsArgs) -> anyhow::Result<i32> {
         .map(|n| IntegratorKind::parse(n.trim()).map_err(anyhow::Error::msg))
         .collect::<anyhow::Result<Vec<_>>>()?;
     let never = AtomicBool::new(false);
-    let options = RenderOptions { spp: Some(args.spp.max(1)), time_limit: None, seed: 1, progress: false };
+    let options = RenderOptions { spp: Some(args.spp.max(1)), seed: 1, ..Default::default() };
     let integrators: Vec<_> =
         kinds.iter().map(|&k| integrators::make(k, limits, scene.integrator.hide_emitters)).collect();
     // Warm up once each, then alternate the measured runs so load changes hit all integrators alike.
