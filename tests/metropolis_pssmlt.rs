@@ -388,3 +388,40 @@ fn same_seed_and_chains_give_the_same_image_on_any_thread_count() {
     let acceptance: f64 = meta(&one, "hslt.mlt.acceptance").unwrap().parse().unwrap();
     assert!(acceptance > 0.05 && acceptance < 1.0, "acceptance {acceptance}");
 }
+
+/// Measurement helper, not a check: relative MSE of EXR images against a reference, as reported in
+/// the equal-time comparisons. `HSLT_REF=ref.exr HSLT_IMAGES=a.exr,b.exr cargo test --test
+/// metropolis_pssmlt -- --ignored relative_mse --nocapture`.
+#[test]
+#[ignore]
+fn relative_mse_of_images() {
+    let (Ok(reference), Ok(images)) = (std::env::var("HSLT_REF"), std::env::var("HSLT_IMAGES")) else {
+        return;
+    };
+    let read = |p: &str| hslt::image::read_image(Path::new(p), false).unwrap();
+    let r = read(&reference);
+    for path in images.split(',') {
+        let img = read(path);
+        let (mut sum, mut n) = (0.0, 0usize);
+        for y in 0..r.height {
+            for x in 0..r.width {
+                for c in 0..3 {
+                    let (a, b) = (img.pixel(x, y)[c] as f64, r.pixel(x, y)[c] as f64);
+                    sum += (a - b).powi(2) / (b * b + 1e-2);
+                    n += 1;
+                }
+            }
+        }
+        let meta = hslt::image::read_exr_metadata(Path::new(path)).unwrap_or_default();
+        let get = |k: &str| meta.iter().find(|(key, _)| key == k).map(|(_, v)| v.clone()).unwrap_or_default();
+        println!(
+            "{path}: relMSE {:.5}, mean {:.4} vs {:.4}, acceptance {} (large {}, small {})",
+            sum / n as f64,
+            image_mean(&img),
+            image_mean(&r),
+            get("hslt.mlt.acceptance"),
+            get("hslt.mlt.large_step.acceptance"),
+            get("hslt.mlt.small_step.acceptance")
+        );
+    }
+}
