@@ -14,6 +14,7 @@ pub mod image;
 pub mod integrators;
 pub mod lights;
 pub mod manifold;
+pub mod metropolis;
 pub mod path;
 pub mod render;
 pub mod report;

@@ -106,7 +106,7 @@ pub struct RenderArgs {
     /// Output image(s); the format follows the extension (.exr, .png, .jpg, .tif, .hdr). Repeatable.
     #[arg(short, long = "output", required = true)]
     pub output: Vec<PathBuf>,
-    /// Integrator (overrides the scene's <integrator>): pt, bdpt.
+    /// Integrator (overrides the scene's <integrator>): pt, bdpt, pssmlt.
     #[arg(long)]
     pub integrator: Option<String>,
     /// BDPT: also write each strategy's weighted contribution, for path depths up to N, as extra EXR
@@ -116,6 +116,16 @@ pub struct RenderArgs {
     /// BDPT: multiple-importance heuristic.
     #[arg(long, default_value = "power", value_parser = ["power", "balance"])]
     pub mis: String,
+    /// PSSMLT: independent BDPT samples in the seeding pass that estimates the normalisation and starts
+    /// the chains (default: 4 per pixel, between 16384 and 1048576).
+    #[arg(long, value_name = "N")]
+    pub seed_paths: Option<usize>,
+    /// PSSMLT: number of Markov chains (fixed, so the image does not depend on the thread count).
+    #[arg(long, value_name = "N", default_value_t = 64)]
+    pub chains: usize,
+    /// PSSMLT: probability of a large step (an independent new sample) per mutation.
+    #[arg(long, value_name = "P", default_value_t = 0.3)]
+    pub p_large: f64,
     /// Samples per pixel (overrides the scene's sampler); with --time, a cap.
     #[arg(long)]
     pub spp: Option<u32>,
@@ -250,6 +260,15 @@ fn run_render(args: RenderArgs) -> anyhow::Result<i32> {
             bail!("--bdpt-strategies writes EXR layers: every output must end in .exr");
         }
     }
+    if args.seed_paths == Some(0) || args.chains == 0 {
+        bail!("--seed-paths and --chains must be at least 1");
+    }
+    if !(0.0..=1.0).contains(&args.p_large) {
+        bail!("--p-large must be between 0 and 1");
+    }
+    settings.pssmlt.seed_paths = args.seed_paths;
+    settings.pssmlt.chains = args.chains;
+    settings.pssmlt.p_large = args.p_large;
     let integrator = integrators::make_with(kind, &settings);
     let options = RenderOptions {
         spp: args.spp.or(if args.time.is_some() { None } else { Some(scene.spp) }),
@@ -285,6 +304,7 @@ fn run_render(args: RenderArgs) -> anyhow::Result<i32> {
     }
     if !args.quiet {
         print_summary(&args.output, &stats, threads);
+        print_metropolis_summary(&meta);
     }
     Ok(if stats.interrupted { 130 } else { 0 })
 }
@@ -331,6 +351,24 @@ fn print_summary(outputs: &[PathBuf], stats: &RenderStats, threads: usize) {
     );
     for o in outputs {
         eprintln!("wrote {}", o.display());
+    }
+}
+
+/// Metropolis statistics (acceptance per mutation) and warnings such as an all-black seeding pass.
+fn print_metropolis_summary(meta: &Metadata) {
+    let get = |key: &str| meta.iter().find(|(k, _)| k == key).map(|(_, v)| v.as_str());
+    if let Some(status) = get("hslt.mlt.status") {
+        eprintln!("warning: {status}");
+    }
+    if let (Some(m), Some(a)) = (get("hslt.mlt.mutations"), get("hslt.mlt.acceptance")) {
+        let mut line = format!("{m} mutations, acceptance {a}");
+        for (k, v) in meta {
+            if let Some(name) = k.strip_prefix("hslt.mlt.").and_then(|r| r.strip_suffix(".acceptance")) {
+                let zero = get(&format!("hslt.mlt.{name}.rejected_zero")).unwrap_or("0");
+                line += &format!("; {name} {v} ({zero} zero-contribution rejections)");
+            }
+        }
+        eprintln!("{line}");
     }
 }
 

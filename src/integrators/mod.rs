@@ -104,6 +104,7 @@ pub struct DepthLimits {
 pub enum IntegratorKind {
     Path,
     Bdpt,
+    Pssmlt,
 }
 
 impl IntegratorKind {
@@ -112,7 +113,8 @@ impl IntegratorKind {
         match name {
             "pt" | "path" => Ok(IntegratorKind::Path),
             "bdpt" => Ok(IntegratorKind::Bdpt),
-            "pssmlt" | "mlt" | "hslt" | "hslt+mlt" | "memlt" => Err(format!(
+            "pssmlt" => Ok(IntegratorKind::Pssmlt),
+            "mlt" | "hslt" | "hslt+mlt" | "memlt" => Err(format!(
                 "integrator '{name}' is not available in this build yet (available: {})",
                 IntegratorKind::AVAILABLE
             )),
@@ -121,15 +123,16 @@ impl IntegratorKind {
     }
 
     /// Names `parse` accepts, for messages.
-    pub const AVAILABLE: &'static str = "pt, bdpt";
+    pub const AVAILABLE: &'static str = "pt, bdpt, pssmlt";
 
     /// Every integrator, in the order reports list them.
-    pub const ALL: [IntegratorKind; 2] = [IntegratorKind::Path, IntegratorKind::Bdpt];
+    pub const ALL: [IntegratorKind; 3] = [IntegratorKind::Path, IntegratorKind::Bdpt, IntegratorKind::Pssmlt];
 
     pub fn name(self) -> &'static str {
         match self {
             IntegratorKind::Path => "pt",
             IntegratorKind::Bdpt => "bdpt",
+            IntegratorKind::Pssmlt => "pssmlt",
         }
     }
 }
@@ -143,6 +146,8 @@ pub struct IntegratorSettings {
     pub bdpt_strategies: Option<u32>,
     /// BDPT: MIS heuristic.
     pub mis: crate::path::MisHeuristic,
+    /// PSSMLT: seeding pass size, chain count, large-step probability, target function.
+    pub pssmlt: crate::metropolis::PssmltSettings,
 }
 
 impl IntegratorSettings {
@@ -152,6 +157,7 @@ impl IntegratorSettings {
             hide_emitters,
             bdpt_strategies: None,
             mis: crate::path::MisHeuristic::Power,
+            pssmlt: crate::metropolis::PssmltSettings::default(),
         }
     }
 }
@@ -171,6 +177,11 @@ pub fn make_with(kind: IntegratorKind, settings: &IntegratorSettings) -> Box<dyn
             bdpt.strategy_layers = settings.bdpt_strategies;
             bdpt.heuristic = settings.mis;
             Box::new(TiledRenderer(Box::new(bdpt)))
+        }
+        IntegratorKind::Pssmlt => {
+            let mut bdpt = Bdpt::new(limits, hide_emitters);
+            bdpt.heuristic = settings.mis;
+            Box::new(crate::metropolis::Pssmlt::new(bdpt, settings.pssmlt.clone()))
         }
     }
 }

@@ -1,0 +1,212 @@
+//! The generic Metropolis–Hastings chain (Metropolis et al. 1953, Hastings 1970; Veach 1997, ch. 11):
+//! mutations propose a new state and the ratio of transition densities, the chain accepts with
+//! a = min(1, f(y) T(y→x) / (f(x) T(x→y))) and records both states with expected values (Veach §11.3.4).
+
+use crate::sampling::Sampler;
+use crate::spectrum::{luminance, Spectrum};
+
+/// Something a chain walks over: a path (Veach's MLT) or a primary-sample vector's sample (PSSMLT).
+pub trait ChainState {
+    /// The total measurement contribution that the target function scores.
+    fn contribution(&self) -> Spectrum;
+
+    /// Whether every value the state would record is finite and non-negative; invalid proposals are
+    /// rejected and counted, never recorded.
+    fn is_valid(&self) -> bool {
+        let c = self.contribution();
+        c.is_finite() && c.min_element() >= 0.0
+    }
+}
+
+/// The scalar the chain's stationary density is proportional to.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum TargetFunction {
+    Luminance,
+    /// Luminance raised to a power (< 1 flattens the distribution towards dim paths).
+    LuminancePower(f64),
+}
+
+impl TargetFunction {
+    pub fn eval(self, contribution: Spectrum) -> f64 {
+        let y = luminance(contribution) as f64;
+        if !(y > 0.0) || !y.is_finite() {
+            return 0.0;
+        }
+        match self {
+            TargetFunction::Luminance => y,
+            TargetFunction::LuminancePower(p) => y.powf(p),
+        }
+    }
+}
+
+/// A mutation's proposal: the new state y and T(y→x) / T(x→y), the ratio of the densities of proposing
+/// the current state from y and of proposing y from the current state (1 for symmetric mutations).
+#[derive(Clone, Debug)]
+pub struct Proposal<S> {
+    pub state: S,
+    pub t_ratio: f64,
+}
+
+/// A way of proposing a new state from the current one. `C` is the context the mutations of one chain
+/// share (scene, integrator settings, PSSMLT's primary-sample vector); it is never shared between chains.
+pub trait Mutation<S, C> {
+    fn name(&self) -> &'static str;
+
+    /// A new state from `current`, or `None` if this mutation does not apply to it (counted, the chain
+    /// stays and records the current state).
+    fn propose(&mut self, current: &S, ctx: &mut C, rng: &mut Sampler) -> Option<Proposal<S>>;
+
+    /// The chain moved to the last proposal.
+    fn accepted(&mut self, _ctx: &mut C) {}
+
+    /// The chain stayed; mutations with internal state (PSS vectors) restore it here.
+    fn rejected(&mut self, _ctx: &mut C) {}
+}
+
+/// Per-mutation counts; `proposed = accepted + rejected + rejected_zero + rejected_invalid`.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct MutationStats {
+    pub name: &'static str,
+    pub proposed: u64,
+    pub accepted: u64,
+    /// Rejected by the acceptance test.
+    pub rejected: u64,
+    /// Rejected because the proposal carries no contribution (target 0).
+    pub rejected_zero: u64,
+    /// Rejected because the proposal's contribution or density ratio was NaN, infinite or negative.
+    pub rejected_invalid: u64,
+    /// The mutation did not apply to the current state.
+    pub not_applicable: u64,
+    /// Sum of acceptance probabilities (mean acceptance = this / proposed).
+    pub acceptance_sum: f64,
+}
+
+impl MutationStats {
+    pub fn acceptance_rate(&self) -> f64 {
+        if self.proposed == 0 {
+            0.0
+        } else {
+            self.accepted as f64 / self.proposed as f64
+        }
+    }
+
+    pub fn add(&mut self, o: &MutationStats) {
+        self.proposed += o.proposed;
+        self.accepted += o.accepted;
+        self.rejected += o.rejected;
+        self.rejected_zero += o.rejected_zero;
+        self.rejected_invalid += o.rejected_invalid;
+        self.not_applicable += o.not_applicable;
+        self.acceptance_sum += o.acceptance_sum;
+    }
+}
+
+/// A mutation with its selection weight.
+pub struct WeightedMutation<S, C> {
+    pub mutation: Box<dyn Mutation<S, C>>,
+    pub weight: f64,
+}
+
+/// One Markov chain. The caller supplies a starting state of non-zero target (drawn from the seeding
+/// pass in proportion to its target, which removes start-up bias) and a recorder for states.
+pub struct Chain<S, C> {
+    current: S,
+    current_target: f64,
+    mutations: Vec<WeightedMutation<S, C>>,
+    total_weight: f64,
+    stats: Vec<MutationStats>,
+    rng: Sampler,
+    target: TargetFunction,
+}
+
+impl<S: ChainState, C> Chain<S, C> {
+    /// `start` must have a positive, finite target; `rng` is the chain's own stream (from the seed and
+    /// the chain index, never from the thread).
+    pub fn new(
+        start: S,
+        mutations: Vec<WeightedMutation<S, C>>,
+        target: TargetFunction,
+        rng: Sampler,
+    ) -> Chain<S, C> {
+        let current_target = target.eval(start.contribution());
+        assert!(current_target > 0.0 && current_target.is_finite(), "a chain must start where f > 0");
+        assert!(!mutations.is_empty(), "a chain needs at least one mutation");
+        let total_weight = mutations.iter().map(|m| m.weight.max(0.0)).sum::<f64>();
+        assert!(total_weight > 0.0, "mutation weights must not all be zero");
+        let stats = mutations
+            .iter()
+            .map(|m| MutationStats { name: m.mutation.name(), ..Default::default() })
+            .collect();
+        Chain { current: start, current_target, mutations, total_weight, stats, rng, target }
+    }
+
+    pub fn current(&self) -> &S {
+        &self.current
+    }
+
+    pub fn current_target(&self) -> f64 {
+        self.current_target
+    }
+
+    pub fn stats(&self) -> &[MutationStats] {
+        &self.stats
+    }
+
+    fn pick_mutation(&mut self) -> usize {
+        let mut u = self.rng.next_f64() * self.total_weight;
+        for (i, m) in self.mutations.iter().enumerate() {
+            let w = m.weight.max(0.0);
+            if u < w {
+                return i;
+            }
+            u -= w;
+        }
+        // Rounding at the top end: the last mutation with positive weight.
+        self.mutations.iter().rposition(|m| m.weight > 0.0).unwrap_or(0)
+    }
+
+    /// One mutation: propose, accept or reject, and record the proposed state with weight a / f(y) and
+    /// the current one with weight (1 − a) / f(x) (expected values). `record(state, weight)` receives
+    /// weights that already include 1/f, so the recorder only multiplies by the normalisation b.
+    pub fn step(&mut self, ctx: &mut C, record: &mut impl FnMut(&S, f64)) {
+        let which = self.pick_mutation();
+        let stats = &mut self.stats[which];
+        stats.proposed += 1;
+        let mutation = &mut self.mutations[which].mutation;
+        let Some(proposal) = mutation.propose(&self.current, ctx, &mut self.rng) else {
+            stats.not_applicable += 1;
+            record(&self.current, 1.0 / self.current_target);
+            return;
+        };
+        let valid = proposal.state.is_valid() && proposal.t_ratio.is_finite() && proposal.t_ratio >= 0.0;
+        let proposed_target = if valid { self.target.eval(proposal.state.contribution()) } else { 0.0 };
+        if !valid || !(proposed_target > 0.0) {
+            if valid {
+                stats.rejected_zero += 1;
+            } else {
+                stats.rejected_invalid += 1;
+            }
+            mutation.rejected(ctx);
+            record(&self.current, 1.0 / self.current_target);
+            return;
+        }
+        let a = (proposed_target * proposal.t_ratio / self.current_target).min(1.0);
+        let a = if a.is_finite() { a } else { 0.0 };
+        stats.acceptance_sum += a;
+        if a > 0.0 {
+            record(&proposal.state, a / proposed_target);
+        }
+        if a < 1.0 {
+            record(&self.current, (1.0 - a) / self.current_target);
+        }
+        if self.rng.next_f64() < a {
+            stats.accepted += 1;
+            mutation.accepted(ctx);
+            self.current = proposal.state;
+            self.current_target = proposed_target;
+        } else {
+            stats.rejected += 1;
+            mutation.rejected(ctx);
+        }
+    }
+}

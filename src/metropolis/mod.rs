@@ -1,0 +1,11 @@
+//! Metropolis light transport: a generic Metropolis–Hastings chain with pluggable mutations (Veach &
+//! Guibas 1997; Veach 1997, ch. 11) and primary-sample-space MLT over BDPT (Kelemen et al. 2002).
+//! Path-space mutations (bidirectional, lens, caustic, multi-chain, HSLT) implement `chain::Mutation`.
+
+pub mod chain;
+pub mod pss;
+pub mod pssmlt;
+
+pub use chain::{Chain, ChainState, Mutation, MutationStats, Proposal, TargetFunction, WeightedMutation};
+pub use pss::PssSampler;
+pub use pssmlt::{PssSample, Pssmlt, PssmltSettings};

@@ -1,0 +1,378 @@
+//! Primary-sample-space MLT (Kelemen et al. 2002) over bidirectional path tracing, as in pbrt-v3's MLT
+//! integrator: a state is one BDPT sample driven by a primary-sample vector, the target is the luminance
+//! of its total contribution, and the image is b / (f · mutations per pixel) times the recorded splats.
+
+use super::chain::{Chain, ChainState, Mutation, MutationStats, Proposal, TargetFunction, WeightedMutation};
+use super::pss::PssSampler;
+use crate::geometry::Vec2;
+use crate::integrators::bdpt::Contribution;
+use crate::integrators::{Bdpt, Integrator, RenderOutput, SampleCounters};
+use crate::render::{Film, RenderOptions, RenderStats, Splat};
+use crate::sampling::{SampleSource, Sampler};
+use crate::scene::Scene;
+use crate::spectrum::Spectrum;
+use rayon::prelude::*;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Instant;
+
+/// BDPT uses streams 0 (camera walk), 1 (light walk) and 2 (connections); the film position has its own.
+const STREAM_COUNT: usize = 4;
+const FILM_STREAM: usize = 3;
+
+/// Third index of `Sampler::new` for each purpose, so seed samples and chains never share a stream.
+const SEED_STREAM: u64 = 0x5EED;
+const CHAIN_STREAM: u64 = 0xC4A1;
+const CHAIN_PSS_STREAM: u64 = 0xC4A2;
+
+/// Seed samples evaluated per parallel work item.
+const SEED_CHUNK: usize = 4096;
+/// Mutations between checks of the time limit and the cancel flag.
+const CHECK_EVERY: u64 = 256;
+/// Per-chain films held at once are limited to about this many bytes (chains run in batches beyond).
+const FILM_MEMORY_BUDGET: usize = 1 << 30;
+
+/// PSSMLT parameters (CLI: `--seed-paths`, `--chains`, `--p-large`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct PssmltSettings {
+    /// Independent BDPT samples of the seeding pass; `None` = four per pixel, at least 16 384 and at
+    /// most 2^20.
+    pub seed_paths: Option<usize>,
+    /// Number of Markov chains; fixed rather than derived from the thread count so images are the same
+    /// on any machine.
+    pub chains: usize,
+    /// Probability of a large step (a fresh, independent sample).
+    pub p_large: f64,
+    pub target: TargetFunction,
+}
+
+impl Default for PssmltSettings {
+    fn default() -> PssmltSettings {
+        PssmltSettings { seed_paths: None, chains: 64, p_large: 0.3, target: TargetFunction::Luminance }
+    }
+}
+
+impl PssmltSettings {
+    pub fn seed_paths_for(&self, pixels: usize) -> usize {
+        self.seed_paths.unwrap_or_else(|| (4 * pixels).clamp(16_384, 1 << 20)).max(1)
+    }
+}
+
+pub struct Pssmlt {
+    pub bdpt: Bdpt,
+    pub settings: PssmltSettings,
+}
+
+/// One BDPT sample as a chain state: its weighted strategy estimates at their film positions.
+#[derive(Clone, Debug, Default)]
+pub struct PssSample {
+    pub splats: Vec<(Vec2, Spectrum)>,
+    /// Sum of the splat values: what the target function scores.
+    pub contribution: Spectrum,
+}
+
+impl ChainState for PssSample {
+    fn contribution(&self) -> Spectrum {
+        self.contribution
+    }
+
+    fn is_valid(&self) -> bool {
+        self.splats.iter().all(|(_, v)| v.is_finite() && v.min_element() >= 0.0)
+            && self.contribution.is_finite()
+    }
+}
+
+/// What the mutations of one chain share: the primary-sample vector and the BDPT it drives.
+pub struct PssContext<'a> {
+    pub scene: &'a Scene,
+    pub bdpt: &'a Bdpt,
+    pub pss: PssSampler,
+    pub counters: SampleCounters,
+    scratch: Vec<Contribution>,
+}
+
+impl<'a> PssContext<'a> {
+    pub fn new(scene: &'a Scene, bdpt: &'a Bdpt, pss: PssSampler) -> PssContext<'a> {
+        PssContext { scene, bdpt, pss, counters: SampleCounters::default(), scratch: Vec::new() }
+    }
+
+    /// Runs BDPT on the current primary-sample vector. The film position is uniform over the image,
+    /// the density BDPT's light-tracing (t = 1) weights assume for camera samples.
+    pub fn evaluate(&mut self) -> PssSample {
+        let (w, h) = (self.scene.film.width as f32, self.scene.film.height as f32);
+        self.pss.start_stream(FILM_STREAM);
+        let u = self.pss.next_2d();
+        // u < 1, but u·w can round up to w; keep the position inside the image.
+        let pos = Vec2::new((u.x * w).min(w * (1.0 - f32::EPSILON)), (u.y * h).min(h * (1.0 - f32::EPSILON)));
+        let ray = self.scene.camera.generate_ray(pos);
+        self.scratch.clear();
+        self.bdpt.sample(self.scene, &ray, &mut self.pss, &mut self.counters, &mut self.scratch);
+        let mut sample = PssSample { splats: Vec::with_capacity(self.scratch.len()), ..Default::default() };
+        for c in &self.scratch {
+            sample.splats.push((c.film.unwrap_or(pos), c.value));
+            sample.contribution += c.value;
+        }
+        sample
+    }
+}
+
+/// Kelemen's two mutations of the primary-sample vector; both are symmetric (T(y→x) = T(x→y)).
+pub struct PssStep {
+    pub large: bool,
+}
+
+impl<'a> Mutation<PssSample, PssContext<'a>> for PssStep {
+    fn name(&self) -> &'static str {
+        if self.large {
+            "large_step"
+        } else {
+            "small_step"
+        }
+    }
+
+    fn propose(
+        &mut self,
+        _current: &PssSample,
+        ctx: &mut PssContext<'a>,
+        _rng: &mut Sampler,
+    ) -> Option<Proposal<PssSample>> {
+        ctx.pss.start_iteration(self.large);
+        Some(Proposal { state: ctx.evaluate(), t_ratio: 1.0 })
+    }
+
+    fn accepted(&mut self, ctx: &mut PssContext<'a>) {
+        ctx.pss.accept();
+    }
+
+    fn rejected(&mut self, ctx: &mut PssContext<'a>) {
+        ctx.pss.reject();
+    }
+}
+
+/// The result of one chain.
+struct ChainRun {
+    film: Film,
+    stats: Vec<MutationStats>,
+    mutations: u64,
+    rays: u64,
+}
+
+impl Pssmlt {
+    pub fn new(bdpt: Bdpt, settings: PssmltSettings) -> Pssmlt {
+        Pssmlt { bdpt, settings }
+    }
+
+    /// The primary-sample vector of seed sample `index` (replayable: chains restart from it).
+    fn seed_pss(seed: u64, index: usize) -> PssSampler {
+        PssSampler::new(Sampler::new(seed, index as u64, SEED_STREAM), STREAM_COUNT)
+    }
+
+    fn mutations(&self) -> Vec<WeightedMutation<PssSample, PssContext<'_>>> {
+        let p_large = self.settings.p_large.clamp(0.0, 1.0);
+        vec![
+            WeightedMutation { mutation: Box::new(PssStep { large: true }), weight: p_large },
+            WeightedMutation { mutation: Box::new(PssStep { large: false }), weight: 1.0 - p_large },
+        ]
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn run_chain(
+        &self,
+        scene: &Scene,
+        seed: u64,
+        chain_index: usize,
+        cdf: &[f64],
+        mutations: u64,
+        deadline: Option<Instant>,
+        cancel: &AtomicBool,
+    ) -> ChainRun {
+        let mut film = Film::with_filter(scene.film.width, scene.film.height, scene.film.rfilter);
+        let mut rng = Sampler::new(seed, chain_index as u64, CHAIN_STREAM);
+        // Start from a seed sample drawn in proportion to its target: the chain is then in its
+        // stationary distribution from the first mutation, so no start-up samples are discarded.
+        let total = cdf[cdf.len() - 1];
+        let u = rng.next_f64() * total;
+        let start_index = cdf.partition_point(|&c| c <= u).min(cdf.len() - 1);
+        let mut ctx = PssContext::new(scene, &self.bdpt, Self::seed_pss(seed, start_index));
+        let start = ctx.evaluate();
+        // Chains that start from the same seed sample must still diverge.
+        ctx.pss.reseed(Sampler::new(seed, chain_index as u64, CHAIN_PSS_STREAM));
+        let target = self.settings.target;
+        if !(start.is_valid() && target.eval(start.contribution) > 0.0) {
+            // Replaying a seed sample is deterministic, so this means the seed pass itself was wrong.
+            debug_assert!(false, "seed sample {start_index} does not replay");
+            return ChainRun { film, stats: Vec::new(), mutations: 0, rays: ctx.counters.rays };
+        }
+        let mut chain = Chain::new(start, self.mutations(), target, rng);
+        let mut record = |state: &PssSample, weight: f64| {
+            for &(pos, value) in &state.splats {
+                film.add_splat(&Splat { pos, value: value * weight as f32, layer: None });
+            }
+        };
+        let mut done = 0;
+        while done < mutations {
+            if done % CHECK_EVERY == 0
+                && (cancel.load(Ordering::Relaxed) || deadline.is_some_and(|d| Instant::now() >= d))
+            {
+                break;
+            }
+            chain.step(&mut ctx, &mut record);
+            done += 1;
+        }
+        ChainRun { film, stats: chain.stats().to_vec(), mutations: done, rays: ctx.counters.rays }
+    }
+}
+
+impl Integrator for Pssmlt {
+    fn name(&self) -> &'static str {
+        "pssmlt"
+    }
+
+    fn render(&self, scene: &Scene, options: &RenderOptions, cancel: &AtomicBool) -> RenderOutput {
+        let start_time = Instant::now();
+        let (width, height) = (scene.film.width, scene.film.height);
+        let pixels = (width * height).max(1);
+        let mut film = Film::with_filter(width, height, scene.film.rfilter);
+        let mut stats = RenderStats::default();
+        let mut metadata: Vec<(String, String)> = Vec::new();
+        let target = self.settings.target;
+
+        // Seeding pass: independent BDPT samples estimate b = E[f] and give the chains their start.
+        let n_seed = self.settings.seed_paths_for(pixels);
+        let chunks: Vec<(Vec<f64>, u64, u64)> = (0..n_seed.div_ceil(SEED_CHUNK))
+            .into_par_iter()
+            .map(|chunk| {
+                let range = chunk * SEED_CHUNK..((chunk + 1) * SEED_CHUNK).min(n_seed);
+                let (mut targets, mut invalid, mut rays) = (Vec::with_capacity(range.len()), 0, 0);
+                if cancel.load(Ordering::Relaxed) {
+                    return (vec![0.0; range.len()], 0, 0);
+                }
+                for i in range {
+                    let mut ctx = PssContext::new(scene, &self.bdpt, Self::seed_pss(options.seed, i));
+                    let sample = ctx.evaluate();
+                    rays += ctx.counters.rays;
+                    if sample.is_valid() {
+                        targets.push(target.eval(sample.contribution));
+                    } else {
+                        invalid += 1;
+                        targets.push(0.0);
+                    }
+                }
+                (targets, invalid, rays)
+            })
+            .collect();
+        let mut cdf = Vec::with_capacity(n_seed);
+        let mut sum = 0.0f64;
+        for (targets, invalid, rays) in &chunks {
+            stats.invalid_samples += invalid;
+            stats.rays += rays;
+            for &t in targets {
+                sum += t;
+                cdf.push(sum);
+            }
+        }
+        drop(chunks);
+        let b = sum / n_seed as f64;
+        let nonzero_seeds = cdf.windows(2).filter(|w| w[1] > w[0]).count() + usize::from(cdf[0] > 0.0);
+        metadata.push(("hslt.mlt.seed_paths".into(), n_seed.to_string()));
+        metadata.push(("hslt.mlt.seed_paths_nonzero".into(), nonzero_seeds.to_string()));
+        metadata.push(("hslt.mlt.normalization".into(), format!("{b:.6e}")));
+        if cancel.load(Ordering::Relaxed) {
+            stats.interrupted = true;
+        }
+        if !(b > 0.0 && b.is_finite()) || stats.interrupted {
+            if !stats.interrupted {
+                metadata.push((
+                    "hslt.mlt.status".into(),
+                    format!(
+                        "no light-carrying path among {n_seed} seed paths (lights hidden or blocked?): \
+                         the image is black"
+                    ),
+                ));
+            }
+            film.splat_scale = 0.0;
+            stats.elapsed = start_time.elapsed();
+            return RenderOutput { film, stats, metadata };
+        }
+
+        // Work: spp keeps its meaning of work per pixel; with only a time limit, chains run until it.
+        let total_mutations = match (options.spp, options.time_limit) {
+            (Some(spp), _) => spp.max(1) as u64 * pixels as u64,
+            (None, Some(_)) => u64::MAX,
+            (None, None) => scene.spp.max(1) as u64 * pixels as u64,
+        };
+        let n_chains = self.settings.chains.max(1).min(total_mutations.min(1 << 32) as usize);
+        let per_chain = |c: usize| {
+            if total_mutations == u64::MAX {
+                u64::MAX
+            } else {
+                total_mutations / n_chains as u64 + u64::from((c as u64) < total_mutations % n_chains as u64)
+            }
+        };
+        let film_bytes = pixels * (3 * 3 * 8 + 8);
+        let batch = (FILM_MEMORY_BUDGET / film_bytes).max(rayon::current_num_threads()).clamp(1, n_chains);
+        let n_batches = n_chains.div_ceil(batch);
+        let chains_start = Instant::now();
+        let remaining = options.time_limit.map(|l| l.saturating_sub(start_time.elapsed()));
+        let mut mutation_stats: Vec<MutationStats> = Vec::new();
+        let mut mutations_done = 0u64;
+        for batch_index in 0..n_batches {
+            // Batches share the time budget evenly (they only exist for very large films).
+            let deadline =
+                remaining.map(|r| chains_start + r.mul_f64((batch_index + 1) as f64 / n_batches as f64));
+            let chain_range = batch_index * batch..((batch_index + 1) * batch).min(n_chains);
+            let runs: Vec<ChainRun> = chain_range
+                .into_par_iter()
+                .map(|c| self.run_chain(scene, options.seed, c, &cdf, per_chain(c), deadline, cancel))
+                .collect();
+            // Merged in chain order: the sum, and so the image, does not depend on scheduling.
+            for run in runs {
+                film.merge(&run.film);
+                mutations_done += run.mutations;
+                stats.rays += run.rays;
+                if mutation_stats.is_empty() {
+                    mutation_stats = run.stats.clone();
+                } else {
+                    for (acc, s) in mutation_stats.iter_mut().zip(&run.stats) {
+                        acc.add(s);
+                    }
+                }
+            }
+        }
+        if cancel.load(Ordering::Relaxed) {
+            stats.interrupted = true;
+        }
+        // Each recorded state weighs 1/f; b/f summed over M mutations estimates the image times M/(w h).
+        film.splat_scale = if mutations_done > 0 { b * pixels as f64 / mutations_done as f64 } else { 0.0 };
+        stats.samples = mutations_done;
+        stats.min_spp = (mutations_done / pixels as u64).min(u32::MAX as u64) as u32;
+        stats.passes = 1;
+        stats.invalid_samples += mutation_stats.iter().map(|s| s.rejected_invalid).sum::<u64>();
+        stats.elapsed = start_time.elapsed();
+
+        let proposed: u64 = mutation_stats.iter().map(|s| s.proposed).sum();
+        let accepted: u64 = mutation_stats.iter().map(|s| s.accepted).sum();
+        metadata.push(("hslt.mlt.chains".into(), n_chains.to_string()));
+        metadata.push(("hslt.mlt.mutations".into(), mutations_done.to_string()));
+        metadata.push((
+            "hslt.mlt.acceptance".into(),
+            format!("{:.4}", if proposed > 0 { accepted as f64 / proposed as f64 } else { 0.0 }),
+        ));
+        for s in &mutation_stats {
+            let key = |what: &str| format!("hslt.mlt.{}.{what}", s.name);
+            metadata.push((key("proposed"), s.proposed.to_string()));
+            metadata.push((key("accepted"), s.accepted.to_string()));
+            metadata.push((key("rejected_zero"), s.rejected_zero.to_string()));
+            metadata.push((key("rejected_invalid"), s.rejected_invalid.to_string()));
+            metadata.push((key("acceptance"), format!("{:.4}", s.acceptance_rate())));
+        }
+        metadata.push((
+            "hslt.mlt.seconds_seeding".into(),
+            format!("{:.3}", seeding_secs(start_time, chains_start)),
+        ));
+        RenderOutput { film, stats, metadata }
+    }
+}
+
+fn seeding_secs(start: Instant, chains_start: Instant) -> f64 {
+    chains_start.saturating_duration_since(start).as_secs_f64()
+}

@@ -1,0 +1,427 @@
+//! Primary-sample-space MLT: the primary-sample vector's mutations and restore, the generic chain on a
+//! one-dimensional target with a known integral, agreement with analytic scenes and with BDPT over
+//! several independent seeds, the all-black seeding case, and thread-count independence.
+//!
+//! MLT noise is correlated between pixels and between mutations, so the statistical checks here never
+//! use the spread of pixels within one image: they use the spread between independent runs (different
+//! seeds) or independent chains, which contains every source of error including the normalisation b.
+
+use hslt::cli::load_scene;
+use hslt::image::ImageBuf;
+use hslt::integrators::{make_with, DepthLimits, IntegratorKind, IntegratorSettings, RenderOutput};
+use hslt::metropolis::{
+    Chain, ChainState, Mutation, Proposal, PssSampler, PssmltSettings, TargetFunction, WeightedMutation,
+};
+use hslt::render::RenderOptions;
+use hslt::sampling::{SampleSource, Sampler};
+use hslt::scene::Scene;
+use hslt::spectrum::Spectrum;
+use std::path::Path;
+use std::sync::atomic::AtomicBool;
+
+fn scene(rel: &str, defines: &[(&str, &str)]) -> Scene {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(rel);
+    load_scene(&path, defines).unwrap_or_else(|e| panic!("{rel}: {e:#}"))
+}
+
+fn render(scene: &Scene, kind: IntegratorKind, spp: u32, seed: u64, pssmlt: PssmltSettings) -> RenderOutput {
+    let limits = DepthLimits { max_depth: scene.integrator.max_depth, rr_depth: scene.integrator.rr_depth };
+    let mut settings = IntegratorSettings::new(limits, scene.integrator.hide_emitters);
+    settings.pssmlt = pssmlt;
+    let options = RenderOptions { spp: Some(spp), time_limit: None, seed, progress: false };
+    make_with(kind, &settings).render(scene, &options, &AtomicBool::new(false))
+}
+
+fn meta<'a>(out: &'a RenderOutput, key: &str) -> Option<&'a str> {
+    out.metadata.iter().find(|(k, _)| k == key).map(|(_, v)| v.as_str())
+}
+
+fn image_mean(img: &ImageBuf) -> f64 {
+    img.data.iter().map(|&v| v as f64).sum::<f64>() / img.data.len() as f64
+}
+
+/// Mean and standard error of the mean of independent values.
+fn mean_se(values: &[f64]) -> (f64, f64) {
+    let n = values.len() as f64;
+    let mean = values.iter().sum::<f64>() / n;
+    let var = values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1.0);
+    (mean, (var / n).sqrt())
+}
+
+/// Circular distance on [0, 1).
+fn wrapped_distance(a: f32, b: f32) -> f32 {
+    let d = (a - b).abs();
+    d.min(1.0 - d)
+}
+
+#[test]
+fn small_steps_stay_in_the_unit_interval_and_stay_close() {
+    let mut pss = PssSampler::new(Sampler::new(1, 2, 3), 3);
+    let mut decide = Sampler::new(9, 0, 0);
+    for stream in 0..3 {
+        pss.start_stream(stream);
+        for _ in 0..4 {
+            pss.next_1d();
+        }
+    }
+    for _ in 0..20_000 {
+        let before = pss.values();
+        pss.start_iteration(false);
+        for stream in 0..3 {
+            pss.start_stream(stream);
+            for _ in 0..4 {
+                let v = pss.next_1d();
+                assert!((0.0..1.0).contains(&v), "value {v} outside [0, 1)");
+            }
+        }
+        let after = pss.values();
+        for (a, b) in before.iter().zip(&after) {
+            // One small step moves at most s2 = 1/64 (wrapped); no large step was ever accepted.
+            let (a, b) = (a.unwrap(), b.unwrap());
+            assert!(wrapped_distance(a, b) <= 1.0 / 64.0 + 1e-6, "{a} -> {b}");
+        }
+        if decide.next_1d() < 0.5 {
+            pss.accept();
+        } else {
+            pss.reject();
+        }
+    }
+}
+
+#[test]
+fn a_rejected_proposal_restores_the_exact_vector() {
+    let mut pss = PssSampler::new(Sampler::new(4, 5, 6), 4);
+    let mut choices = Sampler::new(7, 0, 0);
+    let mut restored = 0;
+    for _ in 0..5_000 {
+        let before = pss.values();
+        pss.start_iteration(choices.next_1d() < 0.3);
+        // Streams restarted at random, as a sampling routine with retries might.
+        for _ in 0..1 + (choices.next_1d() * 12.0) as usize {
+            pss.start_stream((choices.next_1d() * 4.0) as usize);
+            for _ in 0..=(choices.next_1d() * 3.0) as usize {
+                pss.next_1d();
+            }
+        }
+        let proposed = pss.values();
+        // Accept about half, so the history holds large and small steps of various ages.
+        if choices.next_1d() < 0.5 {
+            pss.accept();
+            continue;
+        }
+        pss.reject();
+        let after = pss.values();
+        // Every value the previous state had is back, bit for bit. Dimensions that the proposal read
+        // for the first time since the last large step stay realised (a fresh uniform drawn early).
+        for (i, (b, a)) in before.iter().zip(&after).enumerate() {
+            if b.is_some() {
+                assert_eq!(a, b, "reject did not restore dimension {i}");
+            }
+        }
+        if proposed.iter().zip(&before).any(|(p, b)| b.is_some() && p != b) {
+            restored += 1;
+        }
+    }
+    assert!(restored > 2000, "too few proposals changed the vector ({restored}): the test checks nothing");
+}
+
+#[test]
+fn streams_interleave_so_extra_reads_in_one_do_not_shift_another() {
+    let mut pss = PssSampler::new(Sampler::new(11, 0, 0), 3);
+    pss.start_stream(2);
+    pss.next_1d();
+    // Stream 2, index 0 is slot 2 of the vector: the vector grew lazily to exactly three slots.
+    assert_eq!(pss.values().len(), 3);
+    pss.start_stream(0);
+    for _ in 0..3 {
+        pss.next_1d();
+    }
+    pss.start_stream(1);
+    let light_before: Vec<f32> = (0..2).map(|_| pss.next_1d()).collect();
+    pss.accept();
+    // The next sample reads many more camera numbers; the light stream's values only take a small step.
+    pss.start_iteration(false);
+    pss.start_stream(0);
+    for _ in 0..10 {
+        pss.next_1d();
+    }
+    pss.start_stream(1);
+    let light_after: Vec<f32> = (0..2).map(|_| pss.next_1d()).collect();
+    for (a, b) in light_before.iter().zip(&light_after) {
+        assert!(wrapped_distance(*a, *b) <= 1.0 / 64.0 + 1e-6, "light stream shifted: {a} -> {b}");
+    }
+    // Replaying from the start (a large step with the same history) is deterministic.
+    let mut again = PssSampler::new(Sampler::new(11, 0, 0), 3);
+    again.start_stream(2);
+    again.next_1d();
+    again.start_stream(0);
+    for _ in 0..3 {
+        again.next_1d();
+    }
+    again.start_stream(1);
+    let replay: Vec<f32> = (0..2).map(|_| again.next_1d()).collect();
+    assert_eq!(replay, light_before);
+}
+
+/// A one-dimensional state for the chain test: f(u) = 1 + 8 u² on [0, 1) except 0 on [0.4, 0.5).
+#[derive(Clone)]
+struct Point {
+    u: f32,
+}
+
+fn toy_f(u: f64) -> f64 {
+    if (0.4..0.5).contains(&u) {
+        0.0
+    } else {
+        1.0 + 8.0 * u * u
+    }
+}
+
+fn toy_integral(a: f64, b: f64) -> f64 {
+    let antiderivative = |x: f64| x + 8.0 * x * x * x / 3.0;
+    let clip = |lo: f64, hi: f64| if hi > lo { antiderivative(hi) - antiderivative(lo) } else { 0.0 };
+    clip(a, b.min(0.4)) + clip(a.max(0.5), b)
+}
+
+impl ChainState for Point {
+    fn contribution(&self) -> Spectrum {
+        Spectrum::splat(toy_f(self.u as f64) as f32)
+    }
+}
+
+struct ToyStep {
+    large: bool,
+}
+
+impl Mutation<Point, PssSampler> for ToyStep {
+    fn name(&self) -> &'static str {
+        if self.large {
+            "large"
+        } else {
+            "small"
+        }
+    }
+    fn propose(&mut self, _: &Point, pss: &mut PssSampler, _: &mut Sampler) -> Option<Proposal<Point>> {
+        pss.start_iteration(self.large);
+        Some(Proposal { state: Point { u: pss.next_1d() }, t_ratio: 1.0 })
+    }
+    fn accepted(&mut self, pss: &mut PssSampler) {
+        pss.accept();
+    }
+    fn rejected(&mut self, pss: &mut PssSampler) {
+        pss.reject();
+    }
+}
+
+#[test]
+fn chain_with_expected_values_reproduces_a_known_integral() {
+    // 32 independent chains each estimate the ten bin integrals ∫ f over [k/10, (k+1)/10) as
+    // b · Σ (recorded weight in bin) / M with the exact b = ∫ f; the chains are independent, so their
+    // spread gives the standard error and 5 of them allow a false failure about once in 10^6 per bin.
+    let b = toy_integral(0.0, 1.0);
+    let (chains, steps, bins) = (32, 20_000, 10);
+    let mut estimates = vec![Vec::new(); bins];
+    let mut zero_rejections = 0;
+    for c in 0..chains {
+        // Start at a uniform point of positive f (the chain mixes fast enough that the start-up bias
+        // of not drawing it in proportion to f is negligible at this tolerance).
+        let (mut pss, start) = (1..)
+            .map(|attempt| {
+                let mut pss = PssSampler::new(Sampler::new(21, c, 100 + attempt), 1);
+                let u = pss.next_1d();
+                (pss, Point { u })
+            })
+            .find(|(_, p)| toy_f(p.u as f64) > 0.0)
+            .unwrap();
+        let mutations = vec![
+            WeightedMutation { mutation: Box::new(ToyStep { large: true }), weight: 0.3 },
+            WeightedMutation { mutation: Box::new(ToyStep { large: false }), weight: 0.7 },
+        ];
+        let mut chain = Chain::new(start, mutations, TargetFunction::Luminance, Sampler::new(21, c, 2));
+        let mut histogram = vec![0.0f64; bins];
+        let mut record = |p: &Point, w: f64| {
+            histogram[((p.u as f64 * bins as f64) as usize).min(bins - 1)] += w * toy_f(p.u as f64);
+        };
+        for _ in 0..steps {
+            chain.step(&mut pss, &mut record);
+        }
+        for (k, h) in histogram.iter().enumerate() {
+            estimates[k].push(h * b / steps as f64);
+        }
+        let stats = chain.stats();
+        assert_eq!(stats.iter().map(|s| s.proposed).sum::<u64>(), steps);
+        for s in stats {
+            assert_eq!(
+                s.proposed,
+                s.accepted + s.rejected + s.rejected_zero + s.rejected_invalid + s.not_applicable
+            );
+        }
+        zero_rejections += stats.iter().map(|s| s.rejected_zero).sum::<u64>();
+    }
+    assert!(zero_rejections > 0, "proposals into the zero region must be counted as zero rejections");
+    for (k, est) in estimates.iter().enumerate() {
+        let exact = toy_integral(k as f64 / bins as f64, (k + 1) as f64 / bins as f64);
+        let (mean, se) = mean_se(est);
+        assert!(
+            (mean - exact).abs() <= 5.0 * se + 1e-9,
+            "bin {k}: estimate {mean:.5} ± {se:.5}, exact {exact:.5}"
+        );
+        if exact == 0.0 {
+            assert_eq!(mean, 0.0, "the zero region received weight");
+        }
+    }
+}
+
+#[test]
+fn inside_sphere_over_independent_seeds() {
+    // Every pixel of this scene is Le / (1 − ρ) = 1. Eight independent renders (different seeds): the
+    // spread of their image means is the standard error, including chain correlation and the error of
+    // b. With 7 degrees of freedom, |t| > 6 happens about once in 2000 runs.
+    let s = scene("tests/data/analytic/inside-sphere.xml", &[]);
+    let means: Vec<f64> = (0..8)
+        .map(|seed| {
+            let out = render(&s, IntegratorKind::Pssmlt, 16, 100 + seed, PssmltSettings::default());
+            let img = out.film.to_image();
+            assert!(img.data.iter().all(|v| v.is_finite() && *v >= 0.0));
+            image_mean(&img)
+        })
+        .collect();
+    let (mean, se) = mean_se(&means);
+    eprintln!("inside sphere: {mean:.5} ± {se:.5} over {} seeds", means.len());
+    assert!((mean - 1.0).abs() <= 6.0 * se + 1e-4, "mean {mean:.5} ± {se:.5}, expected 1");
+    // The spread must be plausible too: a run-to-run error above 2% would mean a broken chain.
+    assert!(se < 0.02, "run-to-run standard error {se}");
+}
+
+/// Block means (4 × 4 pixels, channel-averaged) of an image.
+fn blocks(img: &ImageBuf) -> Vec<f64> {
+    let (bw, nx, ny) = (4, img.width / 4, img.height / 4);
+    let mut out = vec![0.0; nx * ny];
+    for y in 0..ny * bw {
+        for x in 0..nx * bw {
+            let p = img.pixel(x, y);
+            out[(y / bw) * nx + x / bw] += (p[0] + p[1] + p[2]) as f64 / (3.0 * (bw * bw) as f64);
+        }
+    }
+    out
+}
+
+/// Σ_j (ā_j − b̄_j)² / Σ_j (s²_a,j / K_a + s²_b,j / K_b) over blocks j: about 1 when both sets of
+/// independent runs have the same expectation, larger with a bias.
+fn discrepancy(a: &[Vec<f64>], b: &[Vec<f64>]) -> f64 {
+    let stats = |runs: &[Vec<f64>], j: usize| {
+        let col: Vec<f64> = runs.iter().map(|r| r[j]).collect();
+        let (m, se) = mean_se(&col);
+        (m, se * se)
+    };
+    let (mut num, mut den) = (0.0, 0.0);
+    for j in 0..a[0].len() {
+        let ((ma, va), (mb, vb)) = (stats(a, j), stats(b, j));
+        num += (ma - mb).powi(2);
+        den += va + vb;
+    }
+    num / den
+}
+
+#[test]
+fn converges_to_bdpt_on_the_cornell_box() {
+    // Four independent PSSMLT renders against four independent BDPT renders at 32 × 32. Per 4 × 4 block,
+    // the squared difference of the run means is compared with its variance estimated from the run
+    // spread; summed over 64 blocks the ratio has mean 1 and a standard deviation of about 0.2 (more
+    // with uneven blocks), so 2.0 is about five standard deviations. The same statistic must reject
+    // the PSSMLT image scaled by 1.1, which shows the test can see a 10% normalisation error.
+    let s = scene("scenes/cornell-box/scene.xml", &[("resx", "32"), ("resy", "32")]);
+    let mlt: Vec<Vec<f64>> = (0..4)
+        .map(|seed| {
+            let out = render(&s, IntegratorKind::Pssmlt, 48, 7 + seed, PssmltSettings::default());
+            let img = out.film.to_image();
+            assert!(img.data.iter().all(|v| v.is_finite() && *v >= 0.0));
+            assert_eq!(out.stats.invalid_samples, 0);
+            blocks(&img)
+        })
+        .collect();
+    let bdpt: Vec<Vec<f64>> = (0..4)
+        .map(|seed| {
+            let out = render(&s, IntegratorKind::Bdpt, 48, 70 + seed, PssmltSettings::default());
+            blocks(&out.film.to_image())
+        })
+        .collect();
+    let d = discrepancy(&mlt, &bdpt);
+    let scaled: Vec<Vec<f64>> = mlt.iter().map(|r| r.iter().map(|v| v * 1.1).collect()).collect();
+    let d_scaled = discrepancy(&scaled, &bdpt);
+    let flux = |runs: &[Vec<f64>]| mean_se(&runs.iter().map(|r| r.iter().sum::<f64>()).collect::<Vec<_>>());
+    let ((fm, fm_se), (fb, fb_se)) = (flux(&mlt), flux(&bdpt));
+    eprintln!("cornell: discrepancy {d:.3} (scaled by 1.1: {d_scaled:.3}); flux {fm:.3}±{fm_se:.3} vs {fb:.3}±{fb_se:.3}");
+    assert!(d < 2.0, "PSSMLT differs from BDPT: discrepancy {d:.3}");
+    assert!(d_scaled > 2.0, "the comparison cannot see a 10% error ({d_scaled:.3})");
+    let flux_tol = 6.0 * (fm_se * fm_se + fb_se * fb_se).sqrt();
+    assert!((fm - fb).abs() <= flux_tol, "total flux {fm:.4} vs BDPT {fb:.4} (± {flux_tol:.4})");
+}
+
+#[test]
+fn no_light_carrying_path_gives_a_black_image_and_says_so() {
+    let s = scene("tests/data/metropolis/light-faces-away.xml", &[]);
+    let out = render(&s, IntegratorKind::Pssmlt, 4, 1, PssmltSettings::default());
+    let img = out.film.to_image();
+    assert!(img.data.iter().all(|&v| v == 0.0), "the image must be black, without NaN");
+    let status = meta(&out, "hslt.mlt.status").expect("the black seeding pass must be reported");
+    assert!(status.contains("no light-carrying path"), "{status}");
+    assert_eq!(meta(&out, "hslt.mlt.seed_paths_nonzero"), Some("0"));
+    assert_eq!(out.stats.invalid_samples, 0);
+}
+
+#[test]
+fn same_seed_and_chains_give_the_same_image_on_any_thread_count() {
+    let s = scene("scenes/cornell-box/scene.xml", &[("resx", "16"), ("resy", "16")]);
+    let settings = PssmltSettings { chains: 8, seed_paths: Some(4096), ..Default::default() };
+    let run = |threads: usize, seed: u64| {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+        pool.install(|| render(&s, IntegratorKind::Pssmlt, 8, seed, settings.clone()))
+    };
+    let (one, two) = (run(1, 5), run(2, 5));
+    assert_eq!(one.film.to_image().data, two.film.to_image().data, "images differ between thread counts");
+    let counts = |o: &RenderOutput| {
+        o.metadata.iter().filter(|(k, _)| !k.contains("seconds")).cloned().collect::<Vec<_>>()
+    };
+    assert_eq!(counts(&one), counts(&two));
+    assert_ne!(one.film.to_image().data, run(2, 6).film.to_image().data, "the seed has no effect");
+    let acceptance: f64 = meta(&one, "hslt.mlt.acceptance").unwrap().parse().unwrap();
+    assert!(acceptance > 0.05 && acceptance < 1.0, "acceptance {acceptance}");
+}
+
+/// Measurement helper, not a check: relative MSE of EXR images against a reference, as reported in
+/// the equal-time comparisons. `HSLT_REF=ref.exr HSLT_IMAGES=a.exr,b.exr cargo test --test
+/// metropolis_pssmlt -- --ignored relative_mse --nocapture`.
+#[test]
+#[ignore]
+fn relative_mse_of_images() {
+    let (Ok(reference), Ok(images)) = (std::env::var("HSLT_REF"), std::env::var("HSLT_IMAGES")) else {
+        return;
+    };
+    let read = |p: &str| hslt::image::read_image(Path::new(p), false).unwrap();
+    let r = read(&reference);
+    for path in images.split(',') {
+        let img = read(path);
+        let (mut sum, mut n) = (0.0, 0usize);
+        for y in 0..r.height {
+            for x in 0..r.width {
+                for c in 0..3 {
+                    let (a, b) = (img.pixel(x, y)[c] as f64, r.pixel(x, y)[c] as f64);
+                    sum += (a - b).powi(2) / (b * b + 1e-2);
+                    n += 1;
+                }
+            }
+        }
+        let meta = hslt::image::read_exr_metadata(Path::new(path)).unwrap_or_default();
+        let get = |k: &str| meta.iter().find(|(key, _)| key == k).map(|(_, v)| v.clone()).unwrap_or_default();
+        println!(
+            "{path}: relMSE {:.5}, mean {:.4} vs {:.4}, acceptance {} (large {}, small {})",
+            sum / n as f64,
+            image_mean(&img),
+            image_mean(&r),
+            get("hslt.mlt.acceptance"),
+            get("hslt.mlt.large_step.acceptance"),
+            get("hslt.mlt.small_step.acceptance")
+        );
+    }
+}
