@@ -28,7 +28,7 @@ fn render(scene: &Scene, kind: IntegratorKind, spp: u32, seed: u64, pssmlt: Pssm
     let limits = DepthLimits { max_depth: scene.integrator.max_depth, rr_depth: scene.integrator.rr_depth };
     let mut settings = IntegratorSettings::new(limits, scene.integrator.hide_emitters);
     settings.pssmlt = pssmlt;
-    let options = RenderOptions { spp: Some(spp), time_limit: None, seed, progress: false };
+    let options = RenderOptions { spp: Some(spp), seed, ..Default::default() };
     make_with(kind, &settings).render(scene, &options, &AtomicBool::new(false))
 }
 
