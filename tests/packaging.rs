@@ -29,8 +29,9 @@ fn man_page_names_every_subcommand_and_each_has_its_own_page() {
     assert!(subcommands.len() >= 3, "{subcommands:?}");
     let all = assets::assets().unwrap();
     for name in &subcommands {
-        // roff escapes '-' as '\-'.
-        assert!(page.contains(&format!("hslt\\-{name}")), "hslt.1 does not mention subcommand {name}");
+        // roff escapes every '-' as '\-', including those inside hyphenated subcommand names.
+        let escaped = name.replace('-', "\\-");
+        assert!(page.contains(&format!("hslt\\-{escaped}")), "hslt.1 does not mention subcommand {name}");
         let sub_page = all
             .iter()
             .find(|a| a.file_name == format!("hslt-{name}.1"))

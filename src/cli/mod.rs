@@ -2,6 +2,7 @@
 //! arguments into load and render options and writes the outputs with their metadata.
 
 pub mod assets;
+pub mod plot_halfvector;
 pub mod report;
 
 use crate::accel::AccelKind;
@@ -42,6 +43,15 @@ pub enum Command {
     Compare(report::CompareArgs),
     /// Render a long, checkpointed reference image (EXR) that --resume continues.
     Reference(report::ReferenceArgs),
+    /// The HSLT supplement's half-vector plots (Fig. 4) for a path through one pixel.
+    ///
+    /// Sweeps vertex I's projected half vector h⊥ over the unit disk (all other half vectors and both
+    /// endpoints fixed) and writes one PNG with three polar plots, left to right: the measurement
+    /// contribution in half-vector measure f_H = f_A/|det J|; the local BSDF at vertex I in the same
+    /// measure (f_s |n·ωo| |dωo/dωH| / |n·H|); and their |difference|, each normalised to a maximum of 1
+    /// (viridis colours: dark blue 0, yellow 1). Black: the walk failed or a segment is occluded;
+    /// transparent: outside the disk. +x is the shading tangent s, +y (up) is t.
+    PlotHalfvector(plot_halfvector::PlotHalfvectorArgs),
     /// Write the man pages and shell completions into a directory (used by scripts/build-deb.sh).
     #[command(hide = true)]
     GenerateAssets(assets::GenerateAssetsArgs),
@@ -192,6 +202,7 @@ pub fn run(cli: Cli) -> anyhow::Result<i32> {
         Command::GenerateAssets(args) => assets::run(args),
         Command::Compare(args) => report::run_compare(args),
         Command::Reference(args) => report::run_reference(args),
+        Command::PlotHalfvector(args) => plot_halfvector::run(args),
     }
 }
 

@@ -5,6 +5,7 @@
 pub mod blocktri;
 pub mod constraint;
 pub mod sampling;
+pub mod sweep;
 pub mod walk;
 
 pub use blocktri::{invert_block, BlockLu, BlockTridiagonal, LogDet, Singular};
