@@ -291,21 +291,23 @@ impl Vertex {
         f * (self.frame.n.dot(to_light).abs() / cos_g)
     }
 
+    /// This vertex as an area light's surface point.
+    fn surface_point(&self) -> SurfacePoint {
+        SurfacePoint {
+            prim: self.prim,
+            bary: self.bary,
+            p: self.p,
+            ng: self.ng,
+            ns: self.frame.n,
+            uv: self.uv,
+        }
+    }
+
     /// Radiance (or intensity) this vertex emits towards `w` (unit, leaving the vertex).
     pub fn emitted(&self, scene: &Scene, w: Vec3) -> Spectrum {
         let Some(li) = self.light else { return Spectrum::ZERO };
         match &scene.lights[li] {
-            Light::Area(a) => {
-                let sp = SurfacePoint {
-                    prim: self.prim,
-                    bary: self.bary,
-                    p: self.p,
-                    ng: self.ng,
-                    ns: self.frame.n,
-                    uv: self.uv,
-                };
-                a.emitted(&sp, w)
-            }
+            Light::Area(a) => a.emitted(&self.surface_point(), w),
             Light::Point(l) => l.intensity,
             Light::Spot(l) => l.intensity * l.falloff(w),
             l @ (Light::Constant { .. } | Light::Env(_)) => l.eval_infinite(-self.ng),
@@ -337,17 +339,7 @@ impl Vertex {
         }
         let w = self.direction_to(next);
         let n = match light {
-            Light::Area(_) => {
-                let sp = SurfacePoint {
-                    prim: self.prim,
-                    bary: self.bary,
-                    p: self.p,
-                    ng: self.ng,
-                    ns: self.frame.n,
-                    uv: self.uv,
-                };
-                AreaLight::emitting_normal(&sp)
-            }
+            Light::Area(_) => AreaLight::emitting_normal(&self.surface_point()),
             _ => Vec3::ZERO,
         };
         self.convert_density(light.pdf_le_dir(n, w), next, scene)
