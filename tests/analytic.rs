@@ -2,14 +2,12 @@
 //! value is known. Every pixel of these scenes has the same expectation, so the spread of pixel
 //! values gives the standard error of the image mean, and each check allows 5 standard errors
 //! (a false failure about once in 1.7 million runs) plus float round-off.
-//! Every integrator joins this suite as it lands: add it to `INTEGRATORS`.
+//! Every integrator joins this suite as it lands (`IntegratorKind::available_kinds`).
 
 use hslt::cli::{load_scene, render_scene};
 use hslt::image::ImageBuf;
 use hslt::integrators::IntegratorKind;
 use std::path::Path;
-
-const INTEGRATORS: &[IntegratorKind] = &IntegratorKind::ALL;
 
 /// Mean and standard error of the mean over all channels of all pixels.
 fn mean_and_stderr(img: &ImageBuf) -> (f64, f64) {
@@ -24,7 +22,7 @@ fn mean_and_stderr(img: &ImageBuf) -> (f64, f64) {
 fn assert_converges(scene: &str, defines: &[(&str, &str)], spp: u32, expected: f64) {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(scene);
     let scene_data = load_scene(&path, defines).unwrap_or_else(|e| panic!("{scene}: {e:#}"));
-    for &kind in INTEGRATORS {
+    for kind in IntegratorKind::available_kinds() {
         let (img, stats) = render_scene(&scene_data, kind, spp, 11);
         assert_eq!(stats.invalid_samples, 0, "{scene} {defines:?}: NaN/Inf samples");
         assert!(img.data.iter().all(|v| v.is_finite() && *v >= 0.0));
@@ -80,7 +78,7 @@ fn white_furnace_rough_conductor_loses_but_never_gains_energy() {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/furnace/roughconductor.xml");
     for (alpha, lower) in [("0.05", 0.97), ("0.3", 0.9), ("0.8", 0.75)] {
         let scene = load_scene(&path, &[("alpha", alpha)]).unwrap();
-        for &kind in INTEGRATORS {
+        for kind in IntegratorKind::available_kinds() {
             let (img, _) = render_scene(&scene, kind, 64, 5);
             let (mean, se) = mean_and_stderr(&img);
             assert!(mean <= 1.0 + 5.0 * se + 1e-4, "alpha {alpha}: furnace mean {mean} gains energy");

@@ -10,7 +10,8 @@ use hslt::cli::load_scene;
 use hslt::image::ImageBuf;
 use hslt::integrators::{make_with, DepthLimits, IntegratorKind, IntegratorSettings, RenderOutput};
 use hslt::metropolis::{
-    Chain, ChainState, Mutation, Proposal, PssSampler, PssmltSettings, TargetFunction, WeightedMutation,
+    Chain, ChainState, Failure, Mutation, MutationStats, Proposal, PssSampler, PssmltSettings,
+    TargetFunction, WeightedMutation,
 };
 use hslt::render::RenderOptions;
 use hslt::sampling::{SampleSource, Sampler};
@@ -201,9 +202,15 @@ impl Mutation<Point, PssSampler> for ToyStep {
             "small"
         }
     }
-    fn propose(&mut self, _: &Point, pss: &mut PssSampler, _: &mut Sampler) -> Option<Proposal<Point>> {
+    fn propose(
+        &mut self,
+        _: &Point,
+        pss: &mut PssSampler,
+        _: &mut Sampler,
+        _: &mut MutationStats,
+    ) -> Result<Proposal<Point>, Failure> {
         pss.start_iteration(self.large);
-        Some(Proposal { state: Point { u: pss.next_1d() }, t_ratio: 1.0 })
+        Ok(Proposal { state: Point { u: pss.next_1d() }, t_ratio: 1.0 })
     }
     fn accepted(&mut self, pss: &mut PssSampler) {
         pss.accept();
@@ -253,7 +260,12 @@ fn chain_with_expected_values_reproduces_a_known_integral() {
         for s in stats {
             assert_eq!(
                 s.proposed,
-                s.accepted + s.rejected + s.rejected_zero + s.rejected_invalid + s.not_applicable
+                s.accepted
+                    + s.rejected
+                    + s.rejected_zero
+                    + s.rejected_invalid
+                    + s.not_applicable
+                    + s.failed_total()
             );
         }
         zero_rejections += stats.iter().map(|s| s.rejected_zero).sum::<u64>();

@@ -8,10 +8,11 @@ pub mod report;
 use crate::accel::AccelKind;
 use crate::image::{ImageBuf, Metadata};
 use crate::integrators::{self, DepthLimits, IntegratorKind};
+use crate::metropolis::MutationKind;
 use crate::path::MisHeuristic;
 use crate::render::{self, RenderOptions, RenderStats};
 use crate::scene::{LoadOptions, Scene};
-use anyhow::{bail, Context};
+use anyhow::{anyhow, bail, Context};
 use clap::{Args, Parser, Subcommand};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -116,7 +117,8 @@ pub struct RenderArgs {
     /// Output image(s); the format follows the extension (.exr, .png, .jpg, .tif, .hdr). Repeatable.
     #[arg(short, long = "output", required = true)]
     pub output: Vec<PathBuf>,
-    /// Integrator (overrides the scene's <integrator>): pt, bdpt, pssmlt.
+    /// Integrator (overrides the scene's <integrator>): pt, bdpt, pssmlt, mlt, memlt, hslt, hslt+mlt
+    /// (the path-space ones as far as this build implements their mutations).
     #[arg(long)]
     pub integrator: Option<String>,
     /// BDPT: also write each strategy's weighted contribution, for path depths up to N, as extra EXR
@@ -133,6 +135,13 @@ pub struct RenderArgs {
     /// PSSMLT: number of Markov chains (fixed, so the image does not depend on the thread count).
     #[arg(long, value_name = "N", default_value_t = 64)]
     pub chains: usize,
+    /// Path-space MLT (mlt, memlt, hslt, hslt+mlt): the mutation mixture with selection weights, e.g.
+    /// bidir:1,lens:1,caustic:1,multichain:1 (known: bidir, lens, caustic, multichain, manifold, hslt).
+    #[arg(long, value_name = "LIST")]
+    pub mutations: Option<String>,
+    /// MEMLT: manifold perturbation size λ (larger: smaller steps).
+    #[arg(long, value_name = "L", default_value_t = 50.0)]
+    pub lambda: f64,
     /// PSSMLT: probability of a large step (an independent new sample) per mutation.
     #[arg(long, value_name = "P", default_value_t = 0.3)]
     pub p_large: f64,
@@ -280,6 +289,20 @@ fn run_render(args: RenderArgs) -> anyhow::Result<i32> {
     settings.pssmlt.seed_paths = args.seed_paths;
     settings.pssmlt.chains = args.chains;
     settings.pssmlt.p_large = args.p_large;
+    if let Some(list) = &args.mutations {
+        if !kind.is_path_space() {
+            bail!("--mutations applies to the path-space integrators (mlt, memlt, hslt, hslt+mlt)");
+        }
+        let mixture = MutationKind::parse_mixture(list).map_err(|e| anyhow!("--mutations: {e}"))?;
+        if let Some((m, _)) = mixture.iter().find(|(m, _)| !m.available()) {
+            bail!("--mutations: mutation '{}' is not available in this build yet", m.name());
+        }
+        settings.mutations = Some(mixture);
+    }
+    if !(args.lambda.is_finite() && args.lambda > 0.0) {
+        bail!("--lambda must be a positive number");
+    }
+    settings.mutation.lambda = args.lambda;
     let integrator = integrators::make_with(kind, &settings);
     let options = RenderOptions {
         spp: args.spp.or(if args.time.is_some() { None } else { Some(scene.spp) }),

@@ -30,7 +30,7 @@ pub struct Bdpt {
 }
 
 /// One weighted strategy estimate of a sample.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug)]
 pub struct Contribution {
     /// Light and camera vertex counts of the strategy.
     pub s: usize,
@@ -39,6 +39,22 @@ pub struct Contribution {
     pub value: Spectrum,
     /// Film position for light-tracing estimates (t = 1); `None` means the camera sample's own position.
     pub film: Option<Vec2>,
+    /// The emitter endpoint when it is not on the light sub-path: the light sample of s = 1, or the
+    /// environment a camera path escaped to (s = 0). Path-space MLT rebuilds the path with it.
+    pub endpoint: Option<Vertex>,
+}
+
+impl Contribution {
+    /// The full path x_0 … x_k of this strategy on the sub-paths it was made from.
+    pub fn path(&self, sub: &Subpaths) -> Vec<Vertex> {
+        let mut path: Vec<Vertex> = sub.camera[..self.t.min(sub.camera.len())].to_vec();
+        match (self.s, self.endpoint) {
+            (0, Some(env)) => path.push(env),
+            (1, Some(light)) => path.push(light),
+            _ => path.extend(sub.light[..self.s].iter().rev()),
+        }
+        path
+    }
 }
 
 /// The sub-paths of one sample, kept so tests can re-evaluate what the integrator computed.
@@ -56,7 +72,7 @@ impl Bdpt {
     }
 
     /// Most vertices a full path may have.
-    fn max_path_vertices(&self) -> usize {
+    pub fn max_path_vertices(&self) -> usize {
         if self.limits.max_depth < 0 {
             UNBOUNDED_VERTICES
         } else {
@@ -166,7 +182,8 @@ impl Bdpt {
                     camera.push(env);
                     walk::update_reverse_density(scene, &mut camera, TransportMode::Radiance);
                     let with_env = Subpaths { camera, light: Vec::new(), escaped: None };
-                    if let Some(c) = self.connect(scene, &with_env, 0, t, sampler, counters) {
+                    if let Some(mut c) = self.connect(scene, &with_env, 0, t, sampler, counters) {
+                        c.endpoint = Some(with_env.camera[t - 1]);
                         out.push(c);
                     }
                 }
@@ -263,7 +280,7 @@ impl Bdpt {
         let path = PathView { camera: &sub.camera[..t], light: light_side };
         let pdfs = connection_pdfs(scene, &path, t);
         let w = mis_weight(scene, &path, &pdfs, t, self.heuristic);
-        Some(Contribution { s, t, value: value * w, film })
+        Some(Contribution { s, t, value: value * w, film, endpoint: sampled_light })
     }
 
     /// The layer names for per-strategy images: `d{depth}_s{s}_t{t}` for every strategy up to the

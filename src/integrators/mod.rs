@@ -9,6 +9,7 @@ pub use bdpt::Bdpt;
 pub use path::PathTracer;
 
 use crate::geometry::Ray;
+use crate::metropolis::{MltSettings, MutationKind, MutationSettings, PathMlt};
 use crate::render::{Film, RenderOptions, RenderStats, Splat};
 use crate::sampling::Sampler;
 use crate::scene::Scene;
@@ -105,34 +106,97 @@ pub enum IntegratorKind {
     Path,
     Bdpt,
     Pssmlt,
+    /// Veach's path-space MLT.
+    Mlt,
+    /// Manifold exploration MLT.
+    Memlt,
+    /// HSLT with the bidirectional mutation.
+    Hslt,
+    /// HSLT with the full MLT mutation set.
+    HsltMlt,
 }
 
 impl IntegratorKind {
     /// Parses a CLI or scene-file name (`pt` and Mitsuba's `path` are the same).
     pub fn parse(name: &str) -> Result<IntegratorKind, String> {
-        match name {
-            "pt" | "path" => Ok(IntegratorKind::Path),
-            "bdpt" => Ok(IntegratorKind::Bdpt),
-            "pssmlt" => Ok(IntegratorKind::Pssmlt),
-            "mlt" | "hslt" | "hslt+mlt" | "memlt" => Err(format!(
+        let kind = match name {
+            "pt" | "path" => IntegratorKind::Path,
+            "bdpt" => IntegratorKind::Bdpt,
+            "pssmlt" => IntegratorKind::Pssmlt,
+            "mlt" => IntegratorKind::Mlt,
+            "memlt" => IntegratorKind::Memlt,
+            "hslt" => IntegratorKind::Hslt,
+            "hslt+mlt" => IntegratorKind::HsltMlt,
+            other => {
+                return Err(format!(
+                    "unknown integrator '{other}' (available: {})",
+                    IntegratorKind::available_names()
+                ))
+            }
+        };
+        if !kind.available() {
+            return Err(format!(
                 "integrator '{name}' is not available in this build yet (available: {})",
-                IntegratorKind::AVAILABLE
-            )),
-            other => Err(format!("unknown integrator '{other}' (available: {})", IntegratorKind::AVAILABLE)),
+                IntegratorKind::available_names()
+            ));
         }
+        Ok(kind)
+    }
+
+    /// Every integrator, in the order reports list them.
+    pub const ALL: [IntegratorKind; 7] = [
+        IntegratorKind::Path,
+        IntegratorKind::Bdpt,
+        IntegratorKind::Pssmlt,
+        IntegratorKind::Mlt,
+        IntegratorKind::Memlt,
+        IntegratorKind::Hslt,
+        IntegratorKind::HsltMlt,
+    ];
+
+    /// The integrators this build implements (path-space ones need all their default mutations).
+    pub fn available_kinds() -> Vec<IntegratorKind> {
+        IntegratorKind::ALL.into_iter().filter(|k| k.available()).collect()
+    }
+
+    pub fn available(self) -> bool {
+        self.default_mutations().iter().all(|(m, _)| m.available())
     }
 
     /// Names `parse` accepts, for messages.
-    pub const AVAILABLE: &'static str = "pt, bdpt, pssmlt";
-
-    /// Every integrator, in the order reports list them.
-    pub const ALL: [IntegratorKind; 3] = [IntegratorKind::Path, IntegratorKind::Bdpt, IntegratorKind::Pssmlt];
+    pub fn available_names() -> String {
+        IntegratorKind::available_kinds().iter().map(|k| k.name()).collect::<Vec<_>>().join(", ")
+    }
 
     pub fn name(self) -> &'static str {
         match self {
             IntegratorKind::Path => "pt",
             IntegratorKind::Bdpt => "bdpt",
             IntegratorKind::Pssmlt => "pssmlt",
+            IntegratorKind::Mlt => "mlt",
+            IntegratorKind::Memlt => "memlt",
+            IntegratorKind::Hslt => "hslt",
+            IntegratorKind::HsltMlt => "hslt+mlt",
+        }
+    }
+
+    /// Whether this is a path-space Metropolis method (configured by a mutation mixture).
+    pub fn is_path_space(self) -> bool {
+        !self.default_mutations().is_empty()
+    }
+
+    /// The mutation mixture of a path-space technique (empty for the others): Veach's set for MLT,
+    /// plus the manifold perturbation for MEMLT (Mitsuba's MEMLT mixture), the half-vector mutation
+    /// with the bidirectional one for HSLT (the paper's "HSLT"), and with Veach's set for HSLT+MLT.
+    pub fn default_mutations(self) -> Vec<(MutationKind, f64)> {
+        use MutationKind::*;
+        let veach = [(Bidirectional, 1.0), (Lens, 1.0), (Caustic, 1.0), (MultiChain, 1.0)];
+        match self {
+            IntegratorKind::Path | IntegratorKind::Bdpt | IntegratorKind::Pssmlt => Vec::new(),
+            IntegratorKind::Mlt => veach.to_vec(),
+            IntegratorKind::Memlt => [&veach[..], &[(Manifold, 1.0)]].concat(),
+            IntegratorKind::Hslt => vec![(Bidirectional, 1.0), (HalfVector, 1.0)],
+            IntegratorKind::HsltMlt => [&veach[..], &[(HalfVector, 1.0)]].concat(),
         }
     }
 }
@@ -146,8 +210,13 @@ pub struct IntegratorSettings {
     pub bdpt_strategies: Option<u32>,
     /// BDPT: MIS heuristic.
     pub mis: crate::path::MisHeuristic,
-    /// PSSMLT: seeding pass size, chain count, large-step probability, target function.
+    /// PSSMLT: seeding pass size, chain count, large-step probability, target function. Path-space
+    /// methods share its seeding pass size, chain count and target.
     pub pssmlt: crate::metropolis::PssmltSettings,
+    /// Path-space methods: the mutation mixture (`None`: the technique's default) and the parameters
+    /// of the individual mutations.
+    pub mutations: Option<Vec<(MutationKind, f64)>>,
+    pub mutation: MutationSettings,
 }
 
 impl IntegratorSettings {
@@ -158,6 +227,8 @@ impl IntegratorSettings {
             bdpt_strategies: None,
             mis: crate::path::MisHeuristic::Power,
             pssmlt: crate::metropolis::PssmltSettings::default(),
+            mutations: None,
+            mutation: MutationSettings::default(),
         }
     }
 }
@@ -182,6 +253,18 @@ pub fn make_with(kind: IntegratorKind, settings: &IntegratorSettings) -> Box<dyn
             let mut bdpt = Bdpt::new(limits, hide_emitters);
             bdpt.heuristic = settings.mis;
             Box::new(crate::metropolis::Pssmlt::new(bdpt, settings.pssmlt.clone()))
+        }
+        IntegratorKind::Mlt | IntegratorKind::Memlt | IntegratorKind::Hslt | IntegratorKind::HsltMlt => {
+            let mut bdpt = Bdpt::new(limits, hide_emitters);
+            bdpt.heuristic = settings.mis;
+            let mut mlt = MltSettings::for_technique(
+                settings.mutations.clone().unwrap_or_else(|| kind.default_mutations()),
+            );
+            mlt.seed_paths = settings.pssmlt.seed_paths;
+            mlt.chains = settings.pssmlt.chains;
+            mlt.target = settings.pssmlt.target;
+            mlt.mutation = settings.mutation.clone();
+            Box::new(PathMlt::new(kind.name(), bdpt, mlt))
         }
     }
 }

@@ -4,6 +4,7 @@
 
 use crate::sampling::Sampler;
 use crate::spectrum::{luminance, Spectrum};
+use std::collections::BTreeMap;
 
 /// Something a chain walks over: a path (Veach's MLT) or a primary-sample vector's sample (PSSMLT).
 pub trait ChainState {
@@ -47,14 +48,31 @@ pub struct Proposal<S> {
     pub t_ratio: f64,
 }
 
+/// Why a mutation produced no proposal.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Failure {
+    /// The mutation does not apply to this state (e.g. HSLT on a path without glossy vertices); the
+    /// chain stays and the state is recorded, as the mixture's selection probabilities intend.
+    NotApplicable,
+    /// The mutation applied but could not build a proposal; counted under `reason` (e.g. "occluded",
+    /// "did_not_converge"), and the chain stays as after a rejection.
+    Failed(&'static str),
+}
+
 /// A way of proposing a new state from the current one. `C` is the context the mutations of one chain
 /// share (scene, integrator settings, PSSMLT's primary-sample vector); it is never shared between chains.
-pub trait Mutation<S, C> {
+pub trait Mutation<S, C>: Send {
     fn name(&self) -> &'static str;
 
-    /// A new state from `current`, or `None` if this mutation does not apply to it (counted, the chain
-    /// stays and records the current state).
-    fn propose(&mut self, current: &S, ctx: &mut C, rng: &mut Sampler) -> Option<Proposal<S>>;
+    /// A new state from `current`, or why there is none. `stats` is this mutation's record in the
+    /// chain, for mutation-specific sums (`MutationStats::add_sum`: Newton iterations, step sizes).
+    fn propose(
+        &mut self,
+        current: &S,
+        ctx: &mut C,
+        rng: &mut Sampler,
+        stats: &mut MutationStats,
+    ) -> Result<Proposal<S>, Failure>;
 
     /// The chain moved to the last proposal.
     fn accepted(&mut self, _ctx: &mut C) {}
@@ -63,7 +81,8 @@ pub trait Mutation<S, C> {
     fn rejected(&mut self, _ctx: &mut C) {}
 }
 
-/// Per-mutation counts; `proposed = accepted + rejected + rejected_zero + rejected_invalid`.
+/// Per-mutation counts; `proposed = accepted + rejected + rejected_zero + rejected_invalid +
+/// not_applicable + Σ failed`.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct MutationStats {
     pub name: &'static str,
@@ -79,6 +98,10 @@ pub struct MutationStats {
     pub not_applicable: u64,
     /// Sum of acceptance probabilities (mean acceptance = this / proposed).
     pub acceptance_sum: f64,
+    /// Proposals the mutation could not build, by reason.
+    pub failed: BTreeMap<&'static str, u64>,
+    /// Mutation-specific sums (divide by a count for a mean), e.g. Newton iterations.
+    pub sums: BTreeMap<&'static str, f64>,
 }
 
 impl MutationStats {
@@ -90,6 +113,14 @@ impl MutationStats {
         }
     }
 
+    pub fn failed_total(&self) -> u64 {
+        self.failed.values().sum()
+    }
+
+    pub fn add_sum(&mut self, key: &'static str, value: f64) {
+        *self.sums.entry(key).or_insert(0.0) += value;
+    }
+
     pub fn add(&mut self, o: &MutationStats) {
         self.proposed += o.proposed;
         self.accepted += o.accepted;
@@ -98,6 +129,12 @@ impl MutationStats {
         self.rejected_invalid += o.rejected_invalid;
         self.not_applicable += o.not_applicable;
         self.acceptance_sum += o.acceptance_sum;
+        for (k, v) in &o.failed {
+            *self.failed.entry(k).or_insert(0) += v;
+        }
+        for (k, v) in &o.sums {
+            *self.sums.entry(k).or_insert(0.0) += v;
+        }
     }
 }
 
@@ -173,10 +210,17 @@ impl<S: ChainState, C> Chain<S, C> {
         let stats = &mut self.stats[which];
         stats.proposed += 1;
         let mutation = &mut self.mutations[which].mutation;
-        let Some(proposal) = mutation.propose(&self.current, ctx, &mut self.rng) else {
-            stats.not_applicable += 1;
-            record(&self.current, 1.0 / self.current_target);
-            return;
+        let proposal = match mutation.propose(&self.current, ctx, &mut self.rng, stats) {
+            Ok(p) => p,
+            Err(failure) => {
+                match failure {
+                    Failure::NotApplicable => stats.not_applicable += 1,
+                    Failure::Failed(reason) => *stats.failed.entry(reason).or_insert(0) += 1,
+                }
+                mutation.rejected(ctx);
+                record(&self.current, 1.0 / self.current_target);
+                return;
+            }
         };
         let valid = proposal.state.is_valid() && proposal.t_ratio.is_finite() && proposal.t_ratio >= 0.0;
         let proposed_target = if valid { self.target.eval(proposal.state.contribution()) } else { 0.0 };

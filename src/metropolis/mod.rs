@@ -3,9 +3,18 @@
 //! Path-space mutations (bidirectional, lens, caustic, multi-chain, HSLT) implement `chain::Mutation`.
 
 pub mod chain;
+pub mod driver;
+pub mod mlt;
+pub mod mutations;
+pub mod path_state;
 pub mod pss;
 pub mod pssmlt;
 
-pub use chain::{Chain, ChainState, Mutation, MutationStats, Proposal, TargetFunction, WeightedMutation};
+pub use chain::{
+    Chain, ChainState, Failure, Mutation, MutationStats, Proposal, TargetFunction, WeightedMutation,
+};
+pub use mlt::{MltSettings, PathMlt, PathSeeds};
+pub use mutations::{MutationKind, MutationSettings};
+pub use path_state::{PathContext, PathState};
 pub use pss::PssSampler;
 pub use pssmlt::{PssSample, Pssmlt, PssmltSettings};

@@ -2,10 +2,13 @@
 //! integrator: a state is one BDPT sample driven by a primary-sample vector, the target is the luminance
 //! of its total contribution, and the image is b / (f · mutations per pixel) times the recorded splats.
 
-use super::chain::{Chain, ChainState, Mutation, MutationStats, Proposal, TargetFunction, WeightedMutation};
+use super::chain::{
+    Chain, ChainState, Failure, Mutation, MutationStats, Proposal, TargetFunction, WeightedMutation,
+};
+use super::driver::{self, ChainRunner, CountsRays, FilmState, RunningChain};
 use super::pss::PssSampler;
 use crate::geometry::Vec2;
-use crate::integrators::bdpt::Contribution;
+use crate::integrators::bdpt::{Contribution, Subpaths};
 use crate::integrators::{Bdpt, Integrator, RenderOutput, SampleCounters};
 use crate::render::{Film, RenderOptions, RenderStats, Splat};
 use crate::sampling::{SampleSource, Sampler};
@@ -26,10 +29,6 @@ const CHAIN_PSS_STREAM: u64 = 0xC4A2;
 
 /// Seed samples evaluated per parallel work item.
 const SEED_CHUNK: usize = 4096;
-/// Mutations between checks of the time limit and the cancel flag.
-const CHECK_EVERY: u64 = 256;
-/// Per-chain films held at once are limited to about this many bytes (chains run in batches beyond).
-const FILM_MEMORY_BUDGET: usize = 1 << 30;
 
 /// PSSMLT parameters (CLI: `--seed-paths`, `--chains`, `--p-large`).
 #[derive(Clone, Debug, PartialEq)]
@@ -98,6 +97,12 @@ impl<'a> PssContext<'a> {
     /// Runs BDPT on the current primary-sample vector. The film position is uniform over the image,
     /// the density BDPT's light-tracing (t = 1) weights assume for camera samples.
     pub fn evaluate(&mut self) -> PssSample {
+        self.evaluate_with_paths().0
+    }
+
+    /// As `evaluate`, also returning the sub-paths; `contributions()` then lists the strategies, from
+    /// which path-space MLT rebuilds whole paths (`Contribution::path`).
+    pub fn evaluate_with_paths(&mut self) -> (PssSample, Subpaths) {
         let (w, h) = (self.scene.film.width as f32, self.scene.film.height as f32);
         self.pss.start_stream(FILM_STREAM);
         let u = self.pss.next_2d();
@@ -105,13 +110,18 @@ impl<'a> PssContext<'a> {
         let pos = Vec2::new((u.x * w).min(w * (1.0 - f32::EPSILON)), (u.y * h).min(h * (1.0 - f32::EPSILON)));
         let ray = self.scene.camera.generate_ray(pos);
         self.scratch.clear();
-        self.bdpt.sample(self.scene, &ray, &mut self.pss, &mut self.counters, &mut self.scratch);
+        let sub = self.bdpt.sample(self.scene, &ray, &mut self.pss, &mut self.counters, &mut self.scratch);
         let mut sample = PssSample { splats: Vec::with_capacity(self.scratch.len()), ..Default::default() };
         for c in &self.scratch {
             sample.splats.push((c.film.unwrap_or(pos), c.value));
             sample.contribution += c.value;
         }
-        sample
+        (sample, sub)
+    }
+
+    /// The strategies of the last evaluation.
+    pub fn contributions(&self) -> &[Contribution] {
+        &self.scratch
     }
 }
 
@@ -134,9 +144,10 @@ impl<'a> Mutation<PssSample, PssContext<'a>> for PssStep {
         _current: &PssSample,
         ctx: &mut PssContext<'a>,
         _rng: &mut Sampler,
-    ) -> Option<Proposal<PssSample>> {
+        _stats: &mut MutationStats,
+    ) -> Result<Proposal<PssSample>, Failure> {
         ctx.pss.start_iteration(self.large);
-        Some(Proposal { state: ctx.evaluate(), t_ratio: 1.0 })
+        Ok(Proposal { state: ctx.evaluate(), t_ratio: 1.0 })
     }
 
     fn accepted(&mut self, ctx: &mut PssContext<'a>) {
@@ -148,21 +159,13 @@ impl<'a> Mutation<PssSample, PssContext<'a>> for PssStep {
     }
 }
 
-/// The result of one chain.
-struct ChainRun {
-    film: Film,
-    stats: Vec<MutationStats>,
-    mutations: u64,
-    rays: u64,
-}
-
 impl Pssmlt {
     pub fn new(bdpt: Bdpt, settings: PssmltSettings) -> Pssmlt {
         Pssmlt { bdpt, settings }
     }
 
     /// The primary-sample vector of seed sample `index` (replayable: chains restart from it).
-    fn seed_pss(seed: u64, index: usize) -> PssSampler {
+    pub fn seed_pss(seed: u64, index: usize) -> PssSampler {
         PssSampler::new(Sampler::new(seed, index as u64, SEED_STREAM), STREAM_COUNT)
     }
 
@@ -174,24 +177,17 @@ impl Pssmlt {
         ]
     }
 
-    #[allow(clippy::too_many_arguments)]
-    fn run_chain(
-        &self,
-        scene: &Scene,
+    /// Chain `chain_index`, started from a seed sample drawn in proportion to its target: the chain is
+    /// then in its stationary distribution from the first mutation, so no start-up samples are discarded.
+    fn start_chain<'a>(
+        &'a self,
+        scene: &'a Scene,
         seed: u64,
         chain_index: usize,
         cdf: &[f64],
-        mutations: u64,
-        deadline: Option<Instant>,
-        cancel: &AtomicBool,
-    ) -> ChainRun {
-        let mut film = Film::with_filter(scene.film.width, scene.film.height, scene.film.rfilter);
+    ) -> Option<ChainRunner<PssSample, PssContext<'a>>> {
         let mut rng = Sampler::new(seed, chain_index as u64, CHAIN_STREAM);
-        // Start from a seed sample drawn in proportion to its target: the chain is then in its
-        // stationary distribution from the first mutation, so no start-up samples are discarded.
-        let total = cdf[cdf.len() - 1];
-        let u = rng.next_f64() * total;
-        let start_index = cdf.partition_point(|&c| c <= u).min(cdf.len() - 1);
+        let start_index = sample_cdf(cdf, rng.next_f64())?;
         let mut ctx = PssContext::new(scene, &self.bdpt, Self::seed_pss(seed, start_index));
         let start = ctx.evaluate();
         // Chains that start from the same seed sample must still diverge.
@@ -200,25 +196,35 @@ impl Pssmlt {
         if !(start.is_valid() && target.eval(start.contribution) > 0.0) {
             // Replaying a seed sample is deterministic, so this means the seed pass itself was wrong.
             debug_assert!(false, "seed sample {start_index} does not replay");
-            return ChainRun { film, stats: Vec::new(), mutations: 0, rays: ctx.counters.rays };
+            return None;
         }
-        let mut chain = Chain::new(start, self.mutations(), target, rng);
-        let mut record = |state: &PssSample, weight: f64| {
-            for &(pos, value) in &state.splats {
-                film.add_splat(&Splat { pos, value: value * weight as f32, layer: None });
-            }
-        };
-        let mut done = 0;
-        while done < mutations {
-            if done % CHECK_EVERY == 0
-                && (cancel.load(Ordering::Relaxed) || deadline.is_some_and(|d| Instant::now() >= d))
-            {
-                break;
-            }
-            chain.step(&mut ctx, &mut record);
-            done += 1;
-        }
-        ChainRun { film, stats: chain.stats().to_vec(), mutations: done, rays: ctx.counters.rays }
+        Some(ChainRunner { chain: Chain::new(start, self.mutations(), target, rng), ctx })
+    }
+}
+
+/// Index drawn from a cumulative table with probability proportional to each entry's increment.
+pub fn sample_cdf(cdf: &[f64], u: f64) -> Option<usize> {
+    let total = *cdf.last()?;
+    if !(total > 0.0) {
+        return None;
+    }
+    let x = u * total;
+    Some(cdf.partition_point(|&c| c <= x).min(cdf.len() - 1))
+}
+
+impl FilmState for PssSample {
+    fn splat(&self, weight: f64, out: &mut Vec<Splat>) {
+        out.extend(self.splats.iter().map(|&(pos, value)| Splat {
+            pos,
+            value: value * weight as f32,
+            layer: None,
+        }));
+    }
+}
+
+impl CountsRays for PssContext<'_> {
+    fn rays(&self) -> u64 {
+        self.counters.rays
     }
 }
 
@@ -236,6 +242,8 @@ impl Integrator for Pssmlt {
         let mut metadata: Vec<(String, String)> = Vec::new();
         let target = self.settings.target;
 
+        // Runs that continue an earlier one (`first_sample` > 0) must be independent of it.
+        let seed = options.seed ^ (options.first_sample as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15);
         // Seeding pass: independent BDPT samples estimate b = E[f] and give the chains their start.
         let n_seed = self.settings.seed_paths_for(pixels);
         let chunks: Vec<(Vec<f64>, u64, u64)> = (0..n_seed.div_ceil(SEED_CHUNK))
@@ -247,7 +255,7 @@ impl Integrator for Pssmlt {
                     return (vec![0.0; range.len()], 0, 0);
                 }
                 for i in range {
-                    let mut ctx = PssContext::new(scene, &self.bdpt, Self::seed_pss(options.seed, i));
+                    let mut ctx = PssContext::new(scene, &self.bdpt, Self::seed_pss(seed, i));
                     let sample = ctx.evaluate();
                     rays += ctx.counters.rays;
                     if sample.is_valid() {
@@ -301,78 +309,47 @@ impl Integrator for Pssmlt {
             (None, None) => scene.spp.max(1) as u64 * pixels as u64,
         };
         let n_chains = self.settings.chains.max(1).min(total_mutations.min(1 << 32) as usize);
-        let per_chain = |c: usize| {
-            if total_mutations == u64::MAX {
-                u64::MAX
-            } else {
-                total_mutations / n_chains as u64 + u64::from((c as u64) < total_mutations % n_chains as u64)
-            }
-        };
-        let film_bytes = pixels * (3 * 3 * 8 + 8);
-        let batch = (FILM_MEMORY_BUDGET / film_bytes).max(rayon::current_num_threads()).clamp(1, n_chains);
-        let n_batches = n_chains.div_ceil(batch);
         let chains_start = Instant::now();
-        let remaining = options.time_limit.map(|l| l.saturating_sub(start_time.elapsed()));
-        let mut mutation_stats: Vec<MutationStats> = Vec::new();
-        let mut mutations_done = 0u64;
-        for batch_index in 0..n_batches {
-            // Batches share the time budget evenly (they only exist for very large films).
-            let deadline =
-                remaining.map(|r| chains_start + r.mul_f64((batch_index + 1) as f64 / n_batches as f64));
-            let chain_range = batch_index * batch..((batch_index + 1) * batch).min(n_chains);
-            let runs: Vec<ChainRun> = chain_range
-                .into_par_iter()
-                .map(|c| self.run_chain(scene, options.seed, c, &cdf, per_chain(c), deadline, cancel))
-                .collect();
-            // Merged in chain order: the sum, and so the image, does not depend on scheduling.
-            for run in runs {
-                film.merge(&run.film);
-                mutations_done += run.mutations;
-                stats.rays += run.rays;
-                if mutation_stats.is_empty() {
-                    mutation_stats = run.stats.clone();
-                } else {
-                    for (acc, s) in mutation_stats.iter_mut().zip(&run.stats) {
-                        acc.add(s);
-                    }
-                }
-            }
-        }
+        let mut chains: Vec<Box<dyn RunningChain + '_>> = (0..n_chains)
+            .into_par_iter()
+            .filter_map(|c| self.start_chain(scene, seed, c, &cdf))
+            .map(|c| Box::new(c) as Box<dyn RunningChain + '_>)
+            .collect();
+        let quotas = driver::quotas(total_mutations, chains.len());
+        let outcome = driver::drive(options, cancel, start_time, b, film, &mut chains, &quotas, |stats| {
+            acceptance_extra(stats)
+        });
+        film = outcome.film;
+        let mutation_stats = outcome.stats;
+        let mutations_done = outcome.mutations;
+        stats.rays += outcome.rays;
+        stats.interrupted |= outcome.interrupted;
         if cancel.load(Ordering::Relaxed) {
             stats.interrupted = true;
         }
-        // Each recorded state weighs 1/f; b/f summed over M mutations estimates the image times M/(w h).
-        film.splat_scale = if mutations_done > 0 { b * pixels as f64 / mutations_done as f64 } else { 0.0 };
+        // Each recorded state weighs 1/f; b/f summed over M mutations estimates the image times M/(w h)
+        // (the driver sets the film's scale accordingly).
         stats.samples = mutations_done;
         stats.min_spp = (mutations_done / pixels as u64).min(u32::MAX as u64) as u32;
         stats.passes = 1;
         stats.invalid_samples += mutation_stats.iter().map(|s| s.rejected_invalid).sum::<u64>();
         stats.elapsed = start_time.elapsed();
 
-        let proposed: u64 = mutation_stats.iter().map(|s| s.proposed).sum();
-        let accepted: u64 = mutation_stats.iter().map(|s| s.accepted).sum();
         metadata.push(("hslt.mlt.chains".into(), n_chains.to_string()));
         metadata.push(("hslt.mlt.mutations".into(), mutations_done.to_string()));
-        metadata.push((
-            "hslt.mlt.acceptance".into(),
-            format!("{:.4}", if proposed > 0 { accepted as f64 / proposed as f64 } else { 0.0 }),
-        ));
-        for s in &mutation_stats {
-            let key = |what: &str| format!("hslt.mlt.{}.{what}", s.name);
-            metadata.push((key("proposed"), s.proposed.to_string()));
-            metadata.push((key("accepted"), s.accepted.to_string()));
-            metadata.push((key("rejected_zero"), s.rejected_zero.to_string()));
-            metadata.push((key("rejected_invalid"), s.rejected_invalid.to_string()));
-            metadata.push((key("acceptance"), format!("{:.4}", s.acceptance_rate())));
-        }
+        metadata.extend(driver::mutation_metadata(&mutation_stats));
         metadata.push((
             "hslt.mlt.seconds_seeding".into(),
-            format!("{:.3}", seeding_secs(start_time, chains_start)),
+            format!("{:.3}", driver::seconds(start_time, chains_start)),
         ));
         RenderOutput { film, stats, metadata }
     }
 }
 
-fn seeding_secs(start: Instant, chains_start: Instant) -> f64 {
-    chains_start.saturating_duration_since(start).as_secs_f64()
+/// The overall acceptance rate, for snapshots (the comparison report plots it).
+pub fn acceptance_extra(stats: &[MutationStats]) -> Vec<(String, String)> {
+    let proposed: u64 = stats.iter().map(|s| s.proposed).sum();
+    let accepted: u64 = stats.iter().map(|s| s.accepted).sum();
+    let rate = if proposed > 0 { accepted as f64 / proposed as f64 } else { 0.0 };
+    vec![("acceptance_rate".into(), format!("{rate:.4}"))]
 }

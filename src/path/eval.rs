@@ -56,8 +56,9 @@ impl<'a> PathView<'a> {
     }
 
     /// The measurement contribution f(X) = W(x_0→x_1) · Π G(x_i, x_{i+1}) · Π ρ_i · L_e(x_{n−1}→x_{n−2}),
-    /// without visibility (callers test it, or know it from tracing). Dirac scattering has no finite
-    /// value here; such paths evaluate to zero.
+    /// without visibility (callers test it, or know it from tracing). At vertices marked `delta` the
+    /// Dirac lobe's coefficient stands in for the BSDF (`Vertex::dirac_lobe`): a value only meaningful
+    /// in ratios with densities that carry the same deltas.
     pub fn contribution(&self, scene: &Scene) -> Spectrum {
         let n = self.len();
         if n < 2 || self.get(0).kind != VertexKind::Camera {

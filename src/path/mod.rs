@@ -281,14 +281,53 @@ impl Vertex {
 
     /// The scattering factor of an inner vertex in the area-measure contribution f(X): the radiance BSDF
     /// for light arriving from `to_light` and leaving towards `to_camera`, times |n_s·ω_l| / |n_g·ω_l|
-    /// (the geometric cosine of that edge is in the geometry term).
+    /// (the geometric cosine of that edge is in the geometry term). At a `delta` vertex the Dirac lobe's
+    /// coefficient stands in for the BSDF (see `dirac_lobe`).
     pub fn scatter_factor(&self, scene: &Scene, to_camera: Vec3, to_light: Vec3) -> Spectrum {
         let cos_g = self.ng.dot(to_light).abs();
         if !(cos_g > 0.0) {
             return Spectrum::ZERO;
         }
-        let f = self.eval_bsdf(scene, to_camera, to_light, TransportMode::Radiance);
+        let f = if self.delta {
+            match self.dirac_lobe(scene, to_camera, to_light, TransportMode::Radiance) {
+                Some((f, _)) => f,
+                None => return Spectrum::ZERO,
+            }
+        } else {
+            self.eval_bsdf(scene, to_camera, to_light, TransportMode::Radiance)
+        };
         f * (self.frame.n.dot(to_light).abs() / cos_g)
+    }
+
+    /// The Dirac lobe of this vertex's BSDF on the side of `wo` (reflection or transmission), as
+    /// (coefficient, lobe probability): the coefficient is the BSDF with its delta removed in solid
+    /// angle (F / |cos θ_o|, with the radiance-mode η² for refraction), the probability is the density
+    /// sampling gives that lobe's direction with the same delta removed. Path-space Metropolis
+    /// evaluates paths through specular vertices with these: every ratio it forms pairs each vertex's
+    /// delta in f with the same delta in a proposal density, so the deltas cancel (Veach 1997, §8.3.2).
+    /// The caller vouches that `wo` is the lobe's direction for `wi` (paths are built by tracing or by
+    /// a walk that keeps the specular constraint); `None` if the BSDF has no such lobe.
+    pub fn dirac_lobe(
+        &self,
+        scene: &Scene,
+        wi: Vec3,
+        wo: Vec3,
+        mode: TransportMode,
+    ) -> Option<(Spectrum, f32)> {
+        let bsdf = self.bsdf(scene)?;
+        let ctx = BsdfContext { mode, uv: self.uv };
+        let (wi_local, wo_local) = (self.frame.to_local(wi), self.frame.to_local(wo));
+        let reflect = wi_local.z * wo_local.z > 0.0;
+        // The lobe choice number is opaque to us; its two extremes select the first and the last lobe.
+        for u_lobe in [0.0, 1.0 - f32::EPSILON] {
+            let Some(bs) = bsdf.sample(&ctx, wi_local, u_lobe, Vec2::splat(0.5)) else { continue };
+            if bs.lobe.is_delta() && (bs.wo.z * wi_local.z > 0.0) == reflect && bs.wo.z != 0.0 {
+                let f = bs.weight * (bs.pdf / bs.wo.z.abs());
+                let f = f * crate::bsdf::shading_normal_correction(mode, wi, wo, self.ng, self.frame.n);
+                return Some((f, bs.pdf));
+            }
+        }
+        None
     }
 
     /// This vertex as an area light's surface point.

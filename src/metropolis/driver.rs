@@ -1,0 +1,220 @@
+//! Runs many Metropolis chains side by side (rayon) in rounds, shared by PSSMLT and path-space MLT:
+//! each round every chain advances on its own random stream and buffers what it records; the buffers
+//! are then added to one film in chain order, so the image depends on the seed alone, never on
+//! scheduling or thread count. Rounds end at snapshot times, the time limit and cancellation.
+
+use super::chain::{Chain, ChainState, MutationStats};
+use crate::render::{Film, RenderOptions, Snapshot, SnapshotClock, Splat};
+use rayon::prelude::*;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Instant;
+
+/// Mutations between checks of the clock and the cancel flag.
+const CHECK_EVERY: u64 = 256;
+/// Most mutations one chain runs per round: bounds the buffered splats (memory) and the delay before
+/// a snapshot or the end of the render.
+const ROUND_MUTATIONS: u64 = 1 << 14;
+
+/// A chain state that can say what it adds to the film.
+pub trait FilmState: ChainState {
+    /// Appends the splats of this state recorded with `weight` (which already holds 1/f).
+    fn splat(&self, weight: f64, out: &mut Vec<Splat>);
+}
+
+/// A chain context that counts the rays it casts.
+pub trait CountsRays {
+    fn rays(&self) -> u64;
+}
+
+/// A chain with everything it needs to advance, behind one object so different state spaces share
+/// the driver.
+pub trait RunningChain: Send {
+    /// Runs at most `max` mutations, stopping early once `deadline` passes or `cancel` is set, and
+    /// appends the recorded splats (unnormalised) to `out`. Returns the number of mutations run.
+    fn advance(
+        &mut self,
+        max: u64,
+        deadline: Option<Instant>,
+        cancel: &AtomicBool,
+        out: &mut Vec<Splat>,
+    ) -> u64;
+    fn stats(&self) -> &[MutationStats];
+    fn rays(&self) -> u64;
+}
+
+/// A `Chain` with its context.
+pub struct ChainRunner<S, C> {
+    pub chain: Chain<S, C>,
+    pub ctx: C,
+}
+
+impl<S: FilmState + Send, C: CountsRays + Send> RunningChain for ChainRunner<S, C> {
+    fn advance(
+        &mut self,
+        max: u64,
+        deadline: Option<Instant>,
+        cancel: &AtomicBool,
+        out: &mut Vec<Splat>,
+    ) -> u64 {
+        let mut record = |state: &S, weight: f64| state.splat(weight, out);
+        let mut done = 0;
+        while done < max {
+            if done % CHECK_EVERY == 0
+                && (cancel.load(Ordering::Relaxed) || deadline.is_some_and(|d| Instant::now() >= d))
+            {
+                break;
+            }
+            self.chain.step(&mut self.ctx, &mut record);
+            done += 1;
+        }
+        done
+    }
+
+    fn stats(&self) -> &[MutationStats] {
+        self.chain.stats()
+    }
+
+    fn rays(&self) -> u64 {
+        self.ctx.rays()
+    }
+}
+
+/// What the chains did.
+#[derive(Debug)]
+pub struct DriveOutcome {
+    /// The image: recorded splats scaled by b · pixels / mutations.
+    pub film: Film,
+    pub mutations: u64,
+    pub stats: Vec<MutationStats>,
+    pub rays: u64,
+    pub interrupted: bool,
+}
+
+/// Work per chain: `total` mutations split evenly, or unbounded (`u64::MAX`) when only a time limit
+/// ends the render.
+pub fn quotas(total: u64, chains: usize) -> Vec<u64> {
+    let n = chains.max(1) as u64;
+    (0..n).map(|c| if total == u64::MAX { u64::MAX } else { total / n + u64::from(c < total % n) }).collect()
+}
+
+/// Sums per-mutation statistics over chains (chains list their mutations in the same order).
+pub fn merge_stats<'a>(all: impl IntoIterator<Item = &'a [MutationStats]>) -> Vec<MutationStats> {
+    let mut merged: Vec<MutationStats> = Vec::new();
+    for stats in all {
+        if merged.is_empty() {
+            merged = stats.to_vec();
+        } else {
+            for (acc, s) in merged.iter_mut().zip(stats) {
+                acc.add(s);
+            }
+        }
+    }
+    merged
+}
+
+/// Runs `chains` until their quotas are done, the time limit passes or `cancel` is set; calls the
+/// snapshot hook of `options` between rounds. `b` is the normalisation (mean target over the whole
+/// state space) estimated by the seeding pass; `started` is when `render` began.
+#[allow(clippy::too_many_arguments)]
+pub fn drive(
+    options: &RenderOptions,
+    cancel: &AtomicBool,
+    started: Instant,
+    b: f64,
+    mut film: Film,
+    chains: &mut [Box<dyn RunningChain + '_>],
+    quotas: &[u64],
+    snapshot_extra: impl Fn(&[MutationStats]) -> Vec<(String, String)>,
+) -> DriveOutcome {
+    assert_eq!(chains.len(), quotas.len());
+    let pixels = (film.width * film.height).max(1) as f64;
+    let deadline = options.time_limit.map(|l| started + l);
+    let mut remaining: Vec<u64> = quotas.to_vec();
+    let mut clock = SnapshotClock::new(options);
+    let mut mutations = 0u64;
+    let mut buffers: Vec<Vec<Splat>> = chains.iter().map(|_| Vec::new()).collect();
+    loop {
+        if remaining.iter().all(|&r| r == 0) || cancel.load(Ordering::Relaxed) {
+            break;
+        }
+        if deadline.is_some_and(|d| Instant::now() >= d) {
+            break;
+        }
+        // A round ends at the next snapshot time so the hook sees the image close to when it asked.
+        let snapshot_at = clock.next_time().map(|t| started + t);
+        let round_deadline = match (deadline, snapshot_at) {
+            (Some(a), Some(b)) => Some(a.min(b)),
+            (a, b) => a.or(b),
+        };
+        let done: Vec<u64> = chains
+            .par_iter_mut()
+            .zip(buffers.par_iter_mut())
+            .zip(remaining.par_iter())
+            .map(|((chain, buffer), &left)| {
+                buffer.clear();
+                chain.advance(left.min(ROUND_MUTATIONS), round_deadline, cancel, buffer)
+            })
+            .collect();
+        for ((left, d), buffer) in remaining.iter_mut().zip(&done).zip(&buffers) {
+            *left = left.saturating_sub(*d);
+            mutations += d;
+            for splat in buffer {
+                film.add_splat(splat);
+            }
+        }
+        film.splat_scale = if mutations > 0 { b * pixels / mutations as f64 } else { 0.0 };
+        clock.poll(started.elapsed(), || {
+            let stats = merge_stats(chains.iter().map(|c| c.stats()));
+            Snapshot {
+                elapsed: started.elapsed(),
+                image: film.to_image(),
+                samples: mutations,
+                spp: (mutations as f64 / pixels) as u32,
+                extra: snapshot_extra(&stats),
+            }
+        });
+        // A round that ran nothing (deadline reached inside every chain) ends the loop next time round.
+        if done.iter().all(|&d| d == 0) && round_deadline == deadline {
+            break;
+        }
+    }
+    let stats = merge_stats(chains.iter().map(|c| c.stats()));
+    let rays = chains.iter().map(|c| c.rays()).sum();
+    film.splat_scale = if mutations > 0 { b * pixels / mutations as f64 } else { 0.0 };
+    DriveOutcome { film, mutations, stats, rays, interrupted: cancel.load(Ordering::Relaxed) }
+}
+
+/// Metadata keys `hslt.mlt.<mutation>.<what>` for each mutation: counts, acceptance, failure reasons
+/// and the means of mutation-specific sums (per proposal).
+pub fn mutation_metadata(stats: &[MutationStats]) -> Vec<(String, String)> {
+    let mut out = Vec::new();
+    let proposed: u64 = stats.iter().map(|s| s.proposed).sum();
+    let accepted: u64 = stats.iter().map(|s| s.accepted).sum();
+    out.push((
+        "hslt.mlt.acceptance".into(),
+        format!("{:.4}", if proposed > 0 { accepted as f64 / proposed as f64 } else { 0.0 }),
+    ));
+    for s in stats {
+        let key = |what: &str| format!("hslt.mlt.{}.{what}", s.name);
+        out.push((key("proposed"), s.proposed.to_string()));
+        out.push((key("accepted"), s.accepted.to_string()));
+        out.push((key("rejected_zero"), s.rejected_zero.to_string()));
+        out.push((key("rejected_invalid"), s.rejected_invalid.to_string()));
+        out.push((key("not_applicable"), s.not_applicable.to_string()));
+        out.push((key("acceptance"), format!("{:.4}", s.acceptance_rate())));
+        for (reason, n) in &s.failed {
+            out.push((key(&format!("failed.{reason}")), n.to_string()));
+        }
+        for (what, sum) in &s.sums {
+            let applied = s.proposed - s.not_applicable;
+            let mean = if applied > 0 { sum / applied as f64 } else { 0.0 };
+            out.push((key(&format!("mean.{what}")), format!("{mean:.6}")));
+        }
+    }
+    out
+}
+
+/// Seconds between two instants, for metadata.
+pub fn seconds(from: Instant, to: Instant) -> f64 {
+    to.saturating_duration_since(from).as_secs_f64()
+}

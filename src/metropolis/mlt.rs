@@ -1,0 +1,257 @@
+//! Path-space Metropolis light transport (Veach & Guibas 1997; Mitsuba's `mlt` and `memlt`): chains walk
+//! over whole paths with a weighted mixture of mutations (`mutations`), started from paths of a BDPT
+//! seeding pass drawn in proportion to their weighted contribution, which removes start-up bias.
+//! MLT, MEMLT, HSLT and HSLT+MLT are this integrator with different mutation sets.
+
+use super::chain::{Chain, MutationStats, TargetFunction, WeightedMutation};
+use super::driver::{self, ChainRunner, RunningChain};
+use super::mutations::{self, MutationKind, MutationSettings};
+use super::path_state::{PathContext, PathState};
+use super::pssmlt::{acceptance_extra, sample_cdf, PssContext, Pssmlt};
+use crate::integrators::{Bdpt, Integrator, RenderOutput};
+use crate::render::{Film, RenderOptions, RenderStats};
+use crate::sampling::Sampler;
+use crate::scene::Scene;
+use crate::spectrum::luminance;
+use rayon::prelude::*;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Instant;
+
+const CHAIN_STREAM: u64 = 0x9A7C;
+/// Seed samples evaluated per parallel work item.
+const SEED_CHUNK: usize = 4096;
+/// Draws of a starting path before a chain gives up (only paths BDPT found but whose f is zero in our
+/// evaluation are redrawn, which should not happen).
+const START_ATTEMPTS: usize = 16;
+
+/// Path-space MLT parameters (CLI: `--mutations`, `--seed-paths`, `--chains`, `--lambda`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct MltSettings {
+    /// Independent BDPT samples of the seeding pass; `None` = as PSSMLT (four per pixel, 16 384 to 2^20).
+    pub seed_paths: Option<usize>,
+    pub chains: usize,
+    /// The mixture: each mutation with its selection weight.
+    pub mutations: Vec<(MutationKind, f64)>,
+    pub target: TargetFunction,
+    /// Parameters of the individual mutations.
+    pub mutation: MutationSettings,
+}
+
+impl MltSettings {
+    /// The defaults of a technique: Veach's MLT set, MEMLT (Veach's set plus the manifold
+    /// perturbation), HSLT (half-vector mutation with the bidirectional mutation) or HSLT+MLT.
+    pub fn for_technique(mutations: Vec<(MutationKind, f64)>) -> MltSettings {
+        MltSettings {
+            seed_paths: None,
+            chains: 64,
+            mutations,
+            target: TargetFunction::Luminance,
+            mutation: MutationSettings::default(),
+        }
+    }
+}
+
+pub struct PathMlt {
+    pub name: &'static str,
+    pub bdpt: Bdpt,
+    pub settings: MltSettings,
+}
+
+/// One seed-pass strategy that can start a chain: its sample, its index among the sample's
+/// contributions, and the running sum of luminance up to and including it.
+#[derive(Clone, Copy, Debug)]
+struct Candidate {
+    sample: usize,
+    contribution: usize,
+}
+
+/// The seeding pass: independent BDPT samples (replayable by index) and the luminance of each of their
+/// weighted strategies. b, the mean of the per-sample sums, is the integral of luminance(f) over path
+/// space: the normalisation of the chains' image.
+pub struct PathSeeds {
+    candidates: Vec<Candidate>,
+    cdf: Vec<f64>,
+    pub samples: usize,
+    pub b: f64,
+    pub rays: u64,
+    pub invalid: u64,
+}
+
+impl PathSeeds {
+    pub fn run(scene: &Scene, bdpt: &Bdpt, seed: u64, n: usize, cancel: &AtomicBool) -> PathSeeds {
+        type Chunk = (Vec<(Candidate, f64)>, u64, u64, f64);
+        let chunks: Vec<Chunk> = (0..n.div_ceil(SEED_CHUNK))
+            .into_par_iter()
+            .map(|chunk| {
+                let mut out: Chunk = (Vec::new(), 0, 0, 0.0);
+                if cancel.load(Ordering::Relaxed) {
+                    return out;
+                }
+                for i in chunk * SEED_CHUNK..((chunk + 1) * SEED_CHUNK).min(n) {
+                    let mut ctx = PssContext::new(scene, bdpt, Pssmlt::seed_pss(seed, i));
+                    let _ = ctx.evaluate();
+                    out.1 += ctx.counters.rays;
+                    for (j, c) in ctx.contributions().iter().enumerate() {
+                        let y = luminance(c.value) as f64;
+                        if !(y.is_finite() && c.value.min_element() >= 0.0) {
+                            out.2 += 1;
+                        } else if y > 0.0 {
+                            out.3 += y;
+                            out.0.push((Candidate { sample: i, contribution: j }, y));
+                        }
+                    }
+                }
+                out
+            })
+            .collect();
+        let mut seeds =
+            PathSeeds { candidates: Vec::new(), cdf: Vec::new(), samples: n, b: 0.0, rays: 0, invalid: 0 };
+        let mut sum = 0.0;
+        for (candidates, rays, invalid, _) in chunks {
+            seeds.rays += rays;
+            seeds.invalid += invalid;
+            for (c, y) in candidates {
+                sum += y;
+                seeds.candidates.push(c);
+                seeds.cdf.push(sum);
+            }
+        }
+        seeds.b = if n > 0 { sum / n as f64 } else { 0.0 };
+        seeds
+    }
+
+    /// Number of strategies with a positive contribution.
+    pub fn candidates(&self) -> usize {
+        self.candidates.len()
+    }
+
+    /// A path drawn in proportion to its weighted contribution (replayed from its seed sample).
+    pub fn draw(&self, scene: &Scene, bdpt: &Bdpt, seed: u64, u: f64) -> Option<PathState> {
+        let c = self.candidates[sample_cdf(&self.cdf, u)?];
+        let mut ctx = PssContext::new(scene, bdpt, Pssmlt::seed_pss(seed, c.sample));
+        let (_, sub) = ctx.evaluate_with_paths();
+        let contribution = ctx.contributions().get(c.contribution)?;
+        PathState::new(scene, contribution.path(&sub))
+    }
+}
+
+impl PathMlt {
+    pub fn new(name: &'static str, bdpt: Bdpt, settings: MltSettings) -> PathMlt {
+        PathMlt { name, bdpt, settings }
+    }
+
+    fn build_mutations(&self, scene: &Scene) -> Vec<WeightedMutation<PathState, PathContext<'_>>> {
+        self.settings
+            .mutations
+            .iter()
+            .filter(|(_, w)| *w > 0.0)
+            .filter_map(|&(kind, weight)| {
+                let mutation = mutations::make(kind, &self.settings.mutation, scene)?;
+                Some(WeightedMutation { mutation, weight })
+            })
+            .collect()
+    }
+
+    fn start_chain<'a>(
+        &'a self,
+        scene: &'a Scene,
+        seeds: &PathSeeds,
+        seed: u64,
+        chain_index: usize,
+    ) -> Option<ChainRunner<PathState, PathContext<'a>>> {
+        let mut rng = Sampler::new(seed, chain_index as u64, CHAIN_STREAM);
+        let target = self.settings.target;
+        for _ in 0..START_ATTEMPTS {
+            let Some(start) = seeds.draw(scene, &self.bdpt, seed, rng.next_f64()) else { continue };
+            if target.eval(start.contribution) > 0.0 {
+                let mutations = self.build_mutations(scene);
+                if mutations.is_empty() {
+                    return None;
+                }
+                let chain = Chain::new(start, mutations, target, rng);
+                return Some(ChainRunner { chain, ctx: PathContext::new(scene, &self.bdpt) });
+            }
+        }
+        None
+    }
+}
+
+impl Integrator for PathMlt {
+    fn name(&self) -> &'static str {
+        self.name
+    }
+
+    fn render(&self, scene: &Scene, options: &RenderOptions, cancel: &AtomicBool) -> RenderOutput {
+        let start_time = Instant::now();
+        let pixels = (scene.film.width * scene.film.height).max(1);
+        let film = Film::with_filter(scene.film.width, scene.film.height, scene.film.rfilter);
+        let mut stats = RenderStats::default();
+        let mut metadata: Vec<(String, String)> = Vec::new();
+        let seed = options.seed ^ (options.first_sample as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+        let n_seed = self.settings.seed_paths.unwrap_or_else(|| (4 * pixels).clamp(16_384, 1 << 20)).max(1);
+        let seeds = PathSeeds::run(scene, &self.bdpt, seed, n_seed, cancel);
+        stats.rays += seeds.rays;
+        stats.invalid_samples += seeds.invalid;
+        let b = seeds.b;
+        metadata.push(("hslt.mlt.seed_paths".into(), n_seed.to_string()));
+        metadata.push(("hslt.mlt.seed_candidates".into(), seeds.candidates().to_string()));
+        metadata.push(("hslt.mlt.normalization".into(), format!("{b:.6e}")));
+        let mutation_names: Vec<String> =
+            self.settings.mutations.iter().map(|(k, w)| format!("{}:{w}", k.name())).collect();
+        metadata.push(("hslt.mlt.mutation_set".into(), mutation_names.join(",")));
+        let mut film = film;
+        if cancel.load(Ordering::Relaxed) || !(b > 0.0 && b.is_finite()) {
+            stats.interrupted = cancel.load(Ordering::Relaxed);
+            if !stats.interrupted {
+                metadata.push((
+                    "hslt.mlt.status".into(),
+                    format!(
+                        "no light-carrying path among {n_seed} seed paths (lights hidden or blocked?): \
+                         the image is black"
+                    ),
+                ));
+            }
+            film.splat_scale = 0.0;
+            stats.elapsed = start_time.elapsed();
+            return RenderOutput { film, stats, metadata };
+        }
+        let total_mutations = match (options.spp, options.time_limit) {
+            (Some(spp), _) => spp.max(1) as u64 * pixels as u64,
+            (None, Some(_)) => u64::MAX,
+            (None, None) => scene.spp.max(1) as u64 * pixels as u64,
+        };
+        let n_chains = self.settings.chains.max(1).min(total_mutations.min(1 << 32) as usize);
+        let chains_start = Instant::now();
+        let mut chains: Vec<Box<dyn RunningChain + '_>> = (0..n_chains)
+            .into_par_iter()
+            .filter_map(|c| self.start_chain(scene, &seeds, seed, c))
+            .map(|c| Box::new(c) as Box<dyn RunningChain + '_>)
+            .collect();
+        if chains.len() < n_chains {
+            metadata.push((
+                "hslt.mlt.warning".into(),
+                format!("{} of {n_chains} chains found no starting path", n_chains - chains.len()),
+            ));
+        }
+        let quotas = driver::quotas(total_mutations, chains.len());
+        let outcome = driver::drive(options, cancel, start_time, b, film, &mut chains, &quotas, |s| {
+            acceptance_extra(s)
+        });
+        let mutation_stats: Vec<MutationStats> = outcome.stats;
+        stats.rays += outcome.rays;
+        stats.interrupted |= outcome.interrupted;
+        stats.samples = outcome.mutations;
+        stats.min_spp = (outcome.mutations / pixels as u64).min(u32::MAX as u64) as u32;
+        stats.passes = 1;
+        stats.invalid_samples += mutation_stats.iter().map(|s| s.rejected_invalid).sum::<u64>();
+        stats.elapsed = start_time.elapsed();
+        metadata.push(("hslt.mlt.chains".into(), chains.len().to_string()));
+        metadata.push(("hslt.mlt.mutations".into(), outcome.mutations.to_string()));
+        metadata.extend(driver::mutation_metadata(&mutation_stats));
+        metadata.push((
+            "hslt.mlt.seconds_seeding".into(),
+            format!("{:.3}", driver::seconds(start_time, chains_start)),
+        ));
+        RenderOutput { film: outcome.film, stats, metadata }
+    }
+}

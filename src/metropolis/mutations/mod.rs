@@ -1,0 +1,137 @@
+//! Path-space mutations, one file each (Veach & Guibas 1997; Jakob & Marschner 2012; Kaplanyan et al.
+//! 2014): each implements `chain::Mutation<PathState, PathContext>` and returns the ratio of transition
+//! densities T(y→x)/T(x→y) in the measure of `PathState::contribution` (product area measure with the
+//! Dirac deltas of specular vertices cancelled, see `Vertex::dirac_lobe`).
+
+use super::chain::Mutation;
+use super::path_state::{PathContext, PathState};
+use crate::scene::Scene;
+
+/// The mutations a path-space chain can mix.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum MutationKind {
+    /// Veach's bidirectional mutation: delete a sub-path, regenerate it from both sides.
+    Bidirectional,
+    /// Lens perturbation: move the image point, follow the specular chain from the camera.
+    Lens,
+    /// Caustic perturbation: move the direction at the light side of a specular chain seen by the camera.
+    Caustic,
+    /// Multi-chain perturbation: lens perturbation continued through several specular chains.
+    MultiChain,
+    /// Manifold perturbation (MEMLT, Jakob & Marschner 2012).
+    Manifold,
+    /// Half-vector space mutation (HSLT, Kaplanyan et al. 2014).
+    HalfVector,
+}
+
+impl MutationKind {
+    pub const ALL: [MutationKind; 6] = [
+        MutationKind::Bidirectional,
+        MutationKind::Lens,
+        MutationKind::Caustic,
+        MutationKind::MultiChain,
+        MutationKind::Manifold,
+        MutationKind::HalfVector,
+    ];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            MutationKind::Bidirectional => "bidir",
+            MutationKind::Lens => "lens",
+            MutationKind::Caustic => "caustic",
+            MutationKind::MultiChain => "multichain",
+            MutationKind::Manifold => "manifold",
+            MutationKind::HalfVector => "hslt",
+        }
+    }
+
+    pub fn parse(name: &str) -> Result<MutationKind, String> {
+        MutationKind::ALL.into_iter().find(|k| k.name() == name).ok_or_else(|| {
+            let names: Vec<&str> = MutationKind::ALL.iter().map(|k| k.name()).collect();
+            format!("unknown mutation '{name}' (known: {})", names.join(", "))
+        })
+    }
+
+    /// Parses a mixture such as `bidir:1,lens:0.5,caustic` (a missing weight is 1).
+    pub fn parse_mixture(text: &str) -> Result<Vec<(MutationKind, f64)>, String> {
+        let mut out = Vec::new();
+        for item in text.split(',').map(str::trim).filter(|s| !s.is_empty()) {
+            let (name, weight) = match item.split_once(':') {
+                Some((n, w)) => {
+                    let w: f64 = w
+                        .trim()
+                        .parse()
+                        .map_err(|_| format!("mutation weight '{w}' in '{item}' is not a number"))?;
+                    (n.trim(), w)
+                }
+                None => (item, 1.0),
+            };
+            if !(weight.is_finite() && weight >= 0.0) {
+                return Err(format!("mutation weight in '{item}' must be a finite number ≥ 0"));
+            }
+            let kind = MutationKind::parse(name)?;
+            if out.iter().any(|(k, _)| *k == kind) {
+                return Err(format!("mutation '{name}' is listed twice"));
+            }
+            out.push((kind, weight));
+        }
+        if !out.iter().any(|(_, w)| *w > 0.0) {
+            return Err(format!("the mutation list '{text}' has no mutation with a positive weight"));
+        }
+        Ok(out)
+    }
+
+    /// Whether this build implements the mutation.
+    pub fn available(self) -> bool {
+        false
+    }
+}
+
+/// Parameters of the individual mutations (each mutation's file documents its own).
+#[derive(Clone, Debug, PartialEq)]
+pub struct MutationSettings {
+    /// MEMLT's perturbation size λ (Jakob & Marschner 2012; the HSLT paper's Figure 16 uses 50).
+    pub lambda: f64,
+}
+
+impl Default for MutationSettings {
+    fn default() -> MutationSettings {
+        MutationSettings { lambda: 50.0 }
+    }
+}
+
+/// Builds a mutation; `None` if this build does not implement it (`MutationKind::available`; the CLI
+/// refuses such mixtures with a message before rendering).
+pub fn make<'a>(
+    kind: MutationKind,
+    _settings: &MutationSettings,
+    _scene: &Scene,
+) -> Option<Box<dyn Mutation<PathState, PathContext<'a>>>> {
+    match kind {
+        MutationKind::Bidirectional
+        | MutationKind::Lens
+        | MutationKind::Caustic
+        | MutationKind::MultiChain
+        | MutationKind::Manifold
+        | MutationKind::HalfVector => None,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn mixtures_parse_with_default_weights_and_reject_bad_input() {
+        let m = MutationKind::parse_mixture("bidir:1,lens:0.5, caustic").unwrap();
+        assert_eq!(
+            m,
+            vec![(MutationKind::Bidirectional, 1.0), (MutationKind::Lens, 0.5), (MutationKind::Caustic, 1.0)]
+        );
+        assert!(MutationKind::parse_mixture("bidir:x").unwrap_err().contains("not a number"));
+        assert!(MutationKind::parse_mixture("warp:1").unwrap_err().contains("unknown mutation 'warp'"));
+        assert!(MutationKind::parse_mixture("lens:0").unwrap_err().contains("positive weight"));
+        assert!(MutationKind::parse_mixture("lens,lens").unwrap_err().contains("twice"));
+        assert!(MutationKind::parse_mixture("lens:-1").is_err());
+    }
+}
