@@ -114,7 +114,7 @@ fn rebuilt_strategy_paths_evaluate_to_what_bdpt_weighted() {
                 let pdfs = view.pdfs(&scene);
                 let w = mis_weight(&scene, &view, &pdfs, c.t, MisHeuristic::Power) as f64;
                 let p = strategy_density(&scene, &path, c.t);
-                if !(p > 0.0) {
+                if p.is_nan() || p <= 0.0 {
                     continue;
                 }
                 let expected = luminance(state.contribution) as f64 * w / p;
