@@ -78,3 +78,49 @@ fn first_sample_continues_the_streams() {
     assert!(worst < 1e-5, "2 + 3 spp differ from 5 spp by {worst}");
     assert_ne!(b, render(3, 0), "first_sample had no effect");
 }
+
+/// Metropolis chains run in rounds that end at snapshot times: the hook is called, with growing
+/// mutation counts and an acceptance rate, and the last snapshot is close to the final image.
+#[test]
+fn metropolis_chains_take_snapshots_between_rounds() {
+    let scene = scene();
+    let limits = DepthLimits { max_depth: scene.integrator.max_depth, rr_depth: scene.integrator.rr_depth };
+    let mut settings = integrators::IntegratorSettings::new(limits, false);
+    settings.pssmlt.seed_paths = Some(4096);
+    settings.pssmlt.chains = 8;
+    let integrator = integrators::make_with(IntegratorKind::Pssmlt, &settings);
+    let taken: Arc<Mutex<Vec<Snapshot>>> = Arc::default();
+    let sink = {
+        let taken = taken.clone();
+        move |s: &Snapshot| taken.lock().unwrap().push(s.clone())
+    };
+    let times: Vec<Duration> = [0.3, 0.6, 0.9].into_iter().map(Duration::from_secs_f64).collect();
+    let options = RenderOptions {
+        time_limit: Some(Duration::from_millis(1500)),
+        seed: 5,
+        snapshots: Some(SnapshotHook { times: times.clone(), sink: Arc::new(sink) }),
+        ..Default::default()
+    };
+    let output = integrator.render(&scene, &options, &AtomicBool::new(false));
+    let taken = taken.lock().unwrap();
+    assert!(!taken.is_empty() && taken.len() <= times.len(), "{} snapshots", taken.len());
+    for w in taken.windows(2) {
+        assert!(w[1].elapsed > w[0].elapsed && w[1].samples > w[0].samples);
+    }
+    for s in taken.iter() {
+        let requested = times.iter().rev().find(|&&t| t <= s.elapsed).unwrap();
+        assert!(s.elapsed < *requested + Duration::from_millis(400), "snapshot at {:?}", s.elapsed);
+        let rate: f64 = s.extra.iter().find(|(k, _)| k == "acceptance_rate").unwrap().1.parse().unwrap();
+        assert!(rate > 0.0 && rate <= 1.0);
+        assert!(s.samples <= output.stats.samples);
+    }
+    let mean =
+        |img: &hslt::image::ImageBuf| img.data.iter().map(|&v| v as f64).sum::<f64>() / img.data.len() as f64;
+    let last = taken.last().unwrap();
+    let final_mean = mean(&output.film.to_image());
+    assert!(
+        (mean(&last.image) - final_mean).abs() < 0.2 * final_mean,
+        "last snapshot mean {} vs final {final_mean}",
+        mean(&last.image)
+    );
+}

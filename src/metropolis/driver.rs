@@ -113,14 +113,15 @@ pub fn merge_stats<'a>(all: impl IntoIterator<Item = &'a [MutationStats]>) -> Ve
 }
 
 /// Runs `chains` until their quotas are done, the time limit passes or `cancel` is set; calls the
-/// snapshot hook of `options` between rounds. `b` is the normalisation (mean target over the whole
-/// state space) estimated by the seeding pass; `started` is when `render` began.
+/// snapshot hook of `options` between rounds. `normalization` gives b, the mean target over the whole
+/// state space, from the merged statistics so far (PSSMLT refines the seeding pass's estimate with its
+/// large steps); `started` is when `render` began.
 #[allow(clippy::too_many_arguments)]
 pub fn drive(
     options: &RenderOptions,
     cancel: &AtomicBool,
     started: Instant,
-    b: f64,
+    normalization: impl Fn(&[MutationStats]) -> f64,
     mut film: Film,
     chains: &mut [Box<dyn RunningChain + '_>],
     quotas: &[u64],
@@ -162,9 +163,10 @@ pub fn drive(
                 film.add_splat(splat);
             }
         }
-        film.splat_scale = if mutations > 0 { b * pixels / mutations as f64 } else { 0.0 };
         clock.poll(started.elapsed(), || {
             let stats = merge_stats(chains.iter().map(|c| c.stats()));
+            film.splat_scale =
+                if mutations > 0 { normalization(&stats) * pixels / mutations as f64 } else { 0.0 };
             Snapshot {
                 elapsed: started.elapsed(),
                 image: film.to_image(),
@@ -180,7 +182,7 @@ pub fn drive(
     }
     let stats = merge_stats(chains.iter().map(|c| c.stats()));
     let rays = chains.iter().map(|c| c.rays()).sum();
-    film.splat_scale = if mutations > 0 { b * pixels / mutations as f64 } else { 0.0 };
+    film.splat_scale = if mutations > 0 { normalization(&stats) * pixels / mutations as f64 } else { 0.0 };
     DriveOutcome { film, mutations, stats, rays, interrupted: cancel.load(Ordering::Relaxed) }
 }
 

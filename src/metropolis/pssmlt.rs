@@ -128,7 +128,12 @@ impl<'a> PssContext<'a> {
 /// Kelemen's two mutations of the primary-sample vector; both are symmetric (T(y→x) = T(x→y)).
 pub struct PssStep {
     pub large: bool,
+    /// Scores large steps: they are independent samples, so their mean target refines b.
+    pub target: TargetFunction,
 }
+
+/// Key of the large steps' summed target in their `MutationStats::sums`.
+const LARGE_STEP_TARGET: &str = "target";
 
 impl<'a> Mutation<PssSample, PssContext<'a>> for PssStep {
     fn name(&self) -> &'static str {
@@ -144,10 +149,15 @@ impl<'a> Mutation<PssSample, PssContext<'a>> for PssStep {
         _current: &PssSample,
         ctx: &mut PssContext<'a>,
         _rng: &mut Sampler,
-        _stats: &mut MutationStats,
+        stats: &mut MutationStats,
     ) -> Result<Proposal<PssSample>, Failure> {
         ctx.pss.start_iteration(self.large);
-        Ok(Proposal { state: ctx.evaluate(), t_ratio: 1.0 })
+        let state = ctx.evaluate();
+        if self.large {
+            let y = if state.is_valid() { self.target.eval(state.contribution) } else { 0.0 };
+            stats.add_sum(LARGE_STEP_TARGET, y);
+        }
+        Ok(Proposal { state, t_ratio: 1.0 })
     }
 
     fn accepted(&mut self, ctx: &mut PssContext<'a>) {
@@ -171,9 +181,10 @@ impl Pssmlt {
 
     fn mutations(&self) -> Vec<WeightedMutation<PssSample, PssContext<'_>>> {
         let p_large = self.settings.p_large.clamp(0.0, 1.0);
+        let target = self.settings.target;
         vec![
-            WeightedMutation { mutation: Box::new(PssStep { large: true }), weight: p_large },
-            WeightedMutation { mutation: Box::new(PssStep { large: false }), weight: 1.0 - p_large },
+            WeightedMutation { mutation: Box::new(PssStep { large: true, target }), weight: p_large },
+            WeightedMutation { mutation: Box::new(PssStep { large: false, target }), weight: 1.0 - p_large },
         ]
     }
 
@@ -316,9 +327,23 @@ impl Integrator for Pssmlt {
             .map(|c| Box::new(c) as Box<dyn RunningChain + '_>)
             .collect();
         let quotas = driver::quotas(total_mutations, chains.len());
-        let outcome = driver::drive(options, cancel, start_time, b, film, &mut chains, &quotas, |stats| {
-            acceptance_extra(stats)
-        });
+        // b from the seeding pass and every large step: both are independent BDPT samples, and the
+        // large steps outnumber the seeds by far in long renders.
+        let seed_sum = sum;
+        let normalization = |stats: &[MutationStats]| {
+            let (large_sum, large_n) = stats
+                .iter()
+                .filter(|s| s.name == "large_step")
+                .map(|s| (s.sums.get(LARGE_STEP_TARGET).copied().unwrap_or(0.0), s.proposed))
+                .fold((0.0, 0), |(a, n), (x, m)| (a + x, n + m));
+            (seed_sum + large_sum) / (n_seed as u64 + large_n) as f64
+        };
+        let outcome =
+            driver::drive(options, cancel, start_time, normalization, film, &mut chains, &quotas, |stats| {
+                acceptance_extra(stats)
+            });
+        metadata
+            .push(("hslt.mlt.normalization_final".into(), format!("{:.6e}", normalization(&outcome.stats))));
         film = outcome.film;
         let mutation_stats = outcome.stats;
         let mutations_done = outcome.mutations;
