@@ -234,16 +234,8 @@ impl Integrator for PathMlt {
             ));
         }
         let quotas = driver::quotas(total_mutations, chains.len());
-        let outcome = driver::drive(
-            options,
-            cancel,
-            start_time,
-            |_| b,
-            film,
-            &mut chains,
-            &quotas,
-            |s| acceptance_extra(s),
-        );
+        let outcome =
+            driver::drive(options, cancel, start_time, |_| b, film, &mut chains, &quotas, acceptance_extra);
         let mutation_stats: Vec<MutationStats> = outcome.stats;
         stats.rays += outcome.rays;
         stats.interrupted |= outcome.interrupted;
