@@ -17,4 +17,7 @@ pub use sampling::{
     bandwidth_shares, beckmann_to_phong, mobius, mobius_inverse, step_sizes, HalfVectorProposal,
     PhongDiskLobe, StepSizes,
 };
-pub use walk::{corrector_pass, walk, CorrectorFailure, WalkError, WalkResult, WalkSettings};
+pub use walk::{
+    corrector_pass, corrector_pass_counting_rays, walk, walk_counting_rays, CorrectorFailure, WalkError,
+    WalkResult, WalkSettings,
+};
