@@ -59,9 +59,15 @@ struct ProposalSample {
 }
 
 /// Draws paths ∝ target from a seeding pass and proposes once from each.
-fn sample_proposals(scene: &Scene, draws: usize, params: HalfVectorParams, seed: u64) -> ProposalSample {
+fn sample_proposals(
+    scene: &Scene,
+    seed_paths: usize,
+    draws: usize,
+    params: HalfVectorParams,
+    seed: u64,
+) -> ProposalSample {
     let bdpt = bdpt(scene);
-    let seeds = PathSeeds::run(scene, &bdpt, seed, 16_384, &AtomicBool::new(false));
+    let seeds = PathSeeds::run(scene, &bdpt, seed, seed_paths, &AtomicBool::new(false));
     assert!(seeds.candidates() > 100, "the seeding pass found too few paths");
     let mut mutation = HalfVectorMutation::new(params);
     let mut ctx = PathContext::new(scene, &bdpt);
@@ -112,31 +118,47 @@ fn sample_proposals(scene: &Scene, draws: usize, params: HalfVectorParams, seed:
 fn check_detailed_balance(rel: &str, defines: &[(&str, &str)], params: HalfVectorParams) {
     let s = scene(rel, defines);
     let started = std::time::Instant::now();
-    let out = sample_proposals(&s, 3000, params, 5);
-    let n = out.balance_valid.len();
-    let (bv, bv_se) = mean_se(&out.balance_valid);
-    let (bt, bt_se) = mean_se(&out.balance_tail);
+    // Independent passes, each with its own seeding pass: seed draws follow an empirical
+    // distribution whose heavy-tailed weights (MIS-weighted caustic strategies) repeat some paths many
+    // times, so only the spread between passes is an honest standard error of the identities.
+    let passes = 12;
+    let mut per_pass = (Vec::new(), Vec::new());
+    let mut total = ProposalSample::default();
+    let mut n = 0;
+    for pass in 0..passes {
+        let out = sample_proposals(&s, 40_000, 6_000, params, 100 + pass);
+        per_pass.0.push(out.balance_valid.iter().sum::<f64>() / out.balance_valid.len() as f64);
+        per_pass.1.push(out.balance_tail.iter().sum::<f64>() / out.balance_tail.len() as f64);
+        n += out.balance_valid.len();
+        total.valid += out.valid;
+        total.accepted_sum += out.accepted_sum;
+        total.not_applicable += out.not_applicable;
+        total.ratio_checks += out.ratio_checks;
+        total.stats.add(&out.stats);
+    }
+    let (bv, bv_se) = mean_se(&per_pass.0);
+    let (bt, bt_se) = mean_se(&per_pass.1);
+    let sums = &total.stats.sums;
     eprintln!(
         "{rel} {defines:?}: {n} applicable proposals ({} not applicable), valid {:.3}, mean acceptance {:.3}; \
-         E[R 1valid] - P(valid) = {bv:.4} ± {bv_se:.4}; E[R 1(R<1)] - P(R>1) = {bt:.4} ± {bt_se:.4}; \
-         failures {:?}; mean Newton iterations {:.2}; mean step {:.4}; {:.1} s",
-        out.not_applicable,
-        out.valid as f64 / n as f64,
-        out.accepted_sum / n as f64,
-        out.stats.failed,
-        out.stats.sums.get("newton_iterations").unwrap_or(&0.0)
-            / out.stats.sums.get("converged_walks").unwrap_or(&1.0),
-        out.stats.sums.get("step_size").unwrap_or(&0.0) / n as f64,
+         E[R 1valid] - P(valid) = {bv:.4} ± {bv_se:.4}; E[R 1(R<1)] - P(R>1) = {bt:.4} ± {bt_se:.4} \
+         ({passes} passes); failures {:?}; mean Newton iterations {:.2}; mean step {:.4}; {:.1} s",
+        total.not_applicable,
+        total.valid as f64 / n as f64,
+        total.accepted_sum / n as f64,
+        total.stats.failed,
+        sums.get("newton_iterations").unwrap_or(&0.0) / sums.get("converged_walks").unwrap_or(&1.0),
+        sums.get("step_size").unwrap_or(&0.0) / n as f64,
         started.elapsed().as_secs_f64()
     );
-    assert!(n > 500, "too few applicable paths ({n}): the test checks nothing");
-    assert!(out.valid > n / 10, "only {} of {n} proposals valid", out.valid);
-    assert!(out.ratio_checks > 50);
-    // Under detailed balance both differences have mean 0; 4 standard errors leave a false failure
-    // about once in 16 000 runs, while a ratio off by a constant factor c moves the first by
-    // (c − 1)·P(valid), which at these sample sizes is many standard errors for |c − 1| ≳ 0.1.
-    assert!(bv.abs() <= 4.0 * bv_se, "E[R 1valid] - P(valid) = {bv} ± {bv_se}");
-    assert!(bt.abs() <= 4.0 * bt_se, "E[R 1(R<1)] - P(R>1) = {bt} ± {bt_se}");
+    assert!(n > 2000, "too few applicable paths ({n}): the test checks nothing");
+    assert!(total.valid > n / 10, "only {} of {n} proposals valid", total.valid);
+    assert!(total.ratio_checks > 50);
+    // Under detailed balance both differences have mean 0. With 11 degrees of freedom |t| > 5 has
+    // probability ~4e-4, while a ratio off by a constant factor c moves the first by
+    // (c − 1)·P(valid), many standard errors for |c − 1| ≳ 0.1 at these sample sizes.
+    assert!(bv.abs() <= 5.0 * bv_se, "E[R 1valid] - P(valid) = {bv} ± {bv_se}");
+    assert!(bt.abs() <= 5.0 * bt_se, "E[R 1(R<1)] - P(R>1) = {bt} ± {bt_se}");
 }
 
 #[test]
@@ -159,40 +181,79 @@ fn detailed_balance_on_fig15() {
 
 #[test]
 #[ignore]
+fn debug_tolerance() {
+    let mut p = HalfVectorParams::default();
+    p.walk.relative_tolerance = 1.0;
+    check_detailed_balance(
+        "scenes/jewelry/scene.xml",
+        &[("resx", "64"), ("resy", "48"), ("max_depth", "4")],
+        p,
+    );
+}
+
+#[test]
+#[ignore]
 fn debug_fig15() {
     use glam::DVec2;
-    let s = scene("scenes/fig15/scene.xml", &[("resx", "64"), ("resy", "48"), ("max_depth", "4"), ("roughness", "0.1")]);
+    let s = scene(
+        "scenes/fig15/scene.xml",
+        &[("resx", "64"), ("resy", "48"), ("max_depth", "4"), ("roughness", "0.1")],
+    );
     let bdpt = bdpt(&s);
     let seeds = PathSeeds::run(&s, &bdpt, 5, 16_384, &AtomicBool::new(false));
     let mut rng = Sampler::new(5, 1, 2);
     let mut shown = 0;
     for _ in 0..3000 {
         let Some(x) = seeds.draw(&s, &bdpt, 5, rng.next_f64()) else { continue };
-        if !applicable(&x.vertices) { continue; }
+        if !applicable(&x.vertices) {
+            continue;
+        }
         let eta = path_etas(&s, &x.vertices);
         let c = path_constraints(&path_geometry(&x.vertices), &eta).unwrap();
-        for v in &x.vertices { eprintln!("  {:?} shape {} class {:?} p {:?} ng {:?} n {:?} dpdu {:?} dndu {:?}", v.kind, v.shape, v.class, v.p, v.ng, v.frame.n, v.derivatives.dpdu, v.derivatives.dndu); }
+        for v in &x.vertices {
+            eprintln!(
+                "  {:?} shape {} class {:?} p {:?} ng {:?} n {:?} dpdu {:?} dndu {:?}",
+                v.kind, v.shape, v.class, v.p, v.ng, v.frame.n, v.derivatives.dpdu, v.derivatives.dndu
+            );
+        }
         eprintln!("  eta {eta:?} h {:?}", c.h);
         for scale in [0.0, 1e-4, 1e-3, 1e-2] {
             let t: Vec<DVec2> = c.h.iter().map(|h| *h + DVec2::new(scale, 0.5 * scale)).collect();
-            let r = hslt::manifold::walk(&s, &x.vertices, &eta, &t, &hslt::manifold::WalkSettings { tolerance: 1e-4, ..Default::default() });
-            match r { Ok(r) => eprintln!("  scale {scale}: ok {} its, errors {:?}", r.iterations, r.errors), Err(e) => eprintln!("  scale {scale}: {e:?}") }
+            let r = hslt::manifold::walk(
+                &s,
+                &x.vertices,
+                &eta,
+                &t,
+                &hslt::manifold::WalkSettings { tolerance: 1e-4, ..Default::default() },
+            );
+            match r {
+                Ok(r) => eprintln!("  scale {scale}: ok {} its, errors {:?}", r.iterations, r.errors),
+                Err(e) => eprintln!("  scale {scale}: {e:?}"),
+            }
             let lu = c.jacobian.factor().unwrap();
             let dh: Vec<DVec2> = t.iter().zip(&c.h).map(|(a, b)| *a - *b).collect();
             let dx = lu.solve(&dh);
             let g = path_geometry(&x.vertices);
-            let cands = hslt::manifold::corrector_pass(&s, &x.vertices, &[1.0, 0.5], |i, f| (g[i].p + g[i].displacement(dx[i - 1] * f)).as_vec3());
+            let cands = hslt::manifold::corrector_pass(&s, &x.vertices, &[1.0, 0.5], |i, f| {
+                (g[i].p + g[i].displacement(dx[i - 1] * f)).as_vec3()
+            });
             for cand in cands {
                 match cand {
                     Ok(p) => {
                         let nh = path_constraints(&path_geometry(&p), &eta).map(|c| c.h);
-                        eprintln!("    cand ok: h {:?} moved {:?}", nh, p.iter().zip(&x.vertices).map(|(a, b)| (a.p - b.p).length()).collect::<Vec<_>>());
+                        eprintln!(
+                            "    cand ok: h {:?} moved {:?}",
+                            nh,
+                            p.iter().zip(&x.vertices).map(|(a, b)| (a.p - b.p).length()).collect::<Vec<_>>()
+                        );
                     }
                     Err(e) => eprintln!("    cand {e:?}"),
                 }
             }
         }
         shown += 1;
-        if shown > 3 { break; }
+        if shown > 3 {
+            break;
+        }
     }
 }
