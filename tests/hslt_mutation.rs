@@ -257,3 +257,138 @@ fn debug_fig15() {
         }
     }
 }
+
+#[test]
+#[ignore]
+fn debug_jewelry_failures() {
+    use glam::DVec2;
+    use std::collections::BTreeMap;
+    let s = scene("scenes/jewelry/scene.xml", &[("resx", "64"), ("resy", "48"), ("max_depth", "4")]);
+    let bdpt = bdpt(&s);
+    let seeds = PathSeeds::run(&s, &bdpt, 5, 40_000, &AtomicBool::new(false));
+    let m = HalfVectorMutation::new(HalfVectorParams::default());
+    let mut rng = Sampler::new(5, 1, 2);
+    let mut tally: BTreeMap<String, (usize, usize)> = BTreeMap::new();
+    let mut first: BTreeMap<String, usize> = BTreeMap::new();
+    for _ in 0..6000 {
+        let Some(x) = seeds.draw(&s, &bdpt, 5, rng.next_f64()) else { continue };
+        if !applicable(&x.vertices) {
+            continue;
+        }
+        let sig: String = x.vertices[1..x.vertices.len() - 1]
+            .iter()
+            .map(|v| {
+                format!(
+                    "{}{}",
+                    v.shape,
+                    match v.class {
+                        hslt::path::ScatterClass::Diffuse => "D",
+                        _ => "G",
+                    }
+                )
+            })
+            .collect::<Vec<_>>()
+            .join("-");
+        let Ok(px) = m.prepare(&s, &x.vertices, x.film) else { continue };
+        let t: Vec<DVec2> = px
+            .steps
+            .iter()
+            .zip(&px.h)
+            .map(|(st, c)| st.proposal(*c).unwrap().sample([rng.next_f64(), rng.next_f64()]).unwrap())
+            .collect();
+        let r = hslt::manifold::walk(&s, &x.vertices, &px.eta, &t, &HalfVectorParams::default().walk);
+        if r.is_err() && sig == "1G" {
+            let mut w = HalfVectorParams::default().walk;
+            w.max_iterations = 200;
+            w.min_step = 1e-9;
+            let r2 = hslt::manifold::walk(&s, &x.vertices, &px.eta, &t, &w);
+            let dh = (t[0] - px.h[0]).length();
+            if r2.is_err() {
+                let mut cur = x.vertices.clone();
+                let mut step = 1.0f64;
+                for _ in 0..30 {
+                    let c = path_constraints(&path_geometry(&cur), &px.eta).unwrap();
+                    let err = (c.h[0] - t[0]).length();
+                    let lu = c.jacobian.factor().unwrap();
+                    let dx = lu.solve(&[t[0] - c.h[0]]);
+                    let g = path_geometry(&cur);
+                    let fr = [step, step * 0.5, step * 0.25];
+                    let cands = hslt::manifold::corrector_pass(&s, &cur, &fr, |i, f| {
+                        (g[i].p + g[i].displacement(dx[i - 1] * f)).as_vec3()
+                    });
+                    let mut line = format!(
+                        "   err {err:.3e} step {step:.1e} |dx| {:.2e} prim {} n {:?} dndu {:?}:",
+                        dx[0].length(),
+                        cur[1].prim,
+                        cur[1].frame.n,
+                        g[1].dn_du
+                    );
+                    let mut moved = false;
+                    for (f, cand) in fr.iter().zip(cands) {
+                        match cand {
+                            Ok(p) => {
+                                let e2 = (path_constraints(&path_geometry(&p), &px.eta).unwrap().h[0] - t[0])
+                                    .length();
+                                line += &format!(" [{f:.1e}: {e2:.3e} prim {}]", p[1].prim);
+                                if e2 < err && !moved {
+                                    cur = p;
+                                    moved = true;
+                                    step = (f * 2.0).min(1.0);
+                                }
+                            }
+                            Err(e) => line += &format!(" [{f:.1e}: {e:?}]"),
+                        }
+                    }
+                    if !moved {
+                        step *= 0.125;
+                    }
+                    eprintln!("{line}");
+                }
+            }
+            match r2 {
+                Ok(r2) => {
+                    eprintln!("1G long walk ok: |dh| {dh:.4} its {} errors {:?}", r2.iterations, r2.errors)
+                }
+                Err(e) => eprintln!(
+                    "1G long walk {e:?} |dh| {dh:.4} h {:?} target {:?} sigma {:?}",
+                    px.h[0], t[0], px.steps[0].sigma
+                ),
+            }
+        }
+        let e = tally.entry(sig.clone()).or_default();
+        e.0 += 1;
+        if r.is_err() {
+            e.1 += 1;
+            let c = path_constraints(&path_geometry(&x.vertices), &px.eta).unwrap();
+            let lu = c.jacobian.factor().unwrap();
+            let dh: Vec<DVec2> = t.iter().zip(&c.h).map(|(a, b)| *a - *b).collect();
+            let dx = lu.solve(&dh);
+            let g = path_geometry(&x.vertices);
+            let cands = hslt::manifold::corrector_pass(&s, &x.vertices, &[1.0, 0.01], |i, f| {
+                (g[i].p + g[i].displacement(dx[i - 1] * f)).as_vec3()
+            });
+            let key = format!(
+                "{sig}: {:?}",
+                cands
+                    .iter()
+                    .map(|cand| match cand {
+                        Ok(p) => {
+                            let nh = path_constraints(&path_geometry(p), &px.eta).unwrap().h;
+                            let err = nh.iter().zip(&t).map(|(a, b)| (*a - *b).length()).fold(0.0, f64::max);
+                            let e0 = c.h.iter().zip(&t).map(|(a, b)| (*a - *b).length()).fold(0.0, f64::max);
+                            format!("ok {:.2}", err / e0)
+                        }
+                        Err(e) => format!("{e:?}"),
+                    })
+                    .collect::<Vec<_>>()
+            );
+            *first.entry(key).or_default() += 1;
+        }
+    }
+    eprintln!("{tally:#?}");
+    let mut v: Vec<_> = first.into_iter().collect();
+    v.sort_by_key(|(_, n)| std::cmp::Reverse(*n));
+    for (k, n) in v.iter().take(30) {
+        eprintln!("{n}: {k}");
+    }
+}
