@@ -179,6 +179,127 @@ fn detailed_balance_on_fig15() {
     );
 }
 
+fn meta<'a>(out: &'a hslt::integrators::RenderOutput, key: &str) -> Option<&'a str> {
+    out.metadata.iter().find(|(k, _)| k == key).map(|(_, v)| v.as_str())
+}
+
+fn meta_u64(out: &hslt::integrators::RenderOutput, key: &str) -> u64 {
+    meta(out, key).map_or(0, |v| v.parse().unwrap())
+}
+
+/// Block means (4 × 4 pixels, channel-averaged) of an image.
+fn blocks(img: &hslt::image::ImageBuf) -> Vec<f64> {
+    let (bw, nx, ny) = (4, img.width / 4, img.height / 4);
+    let mut out = vec![0.0; nx * ny];
+    for y in 0..ny * bw {
+        for x in 0..nx * bw {
+            let p = img.pixel(x, y);
+            out[(y / bw) * nx + x / bw] += (p[0] + p[1] + p[2]) as f64 / (3.0 * (bw * bw) as f64);
+        }
+    }
+    out
+}
+
+/// Σ_j (ā_j − b̄_j)² / Σ_j (s²_a,j / K_a + s²_b,j / K_b) over blocks j: about 1 when both sets of
+/// independent runs have the same expectation, larger with a bias.
+fn discrepancy(a: &[Vec<f64>], b: &[Vec<f64>]) -> f64 {
+    let stats = |runs: &[Vec<f64>], j: usize| {
+        let col: Vec<f64> = runs.iter().map(|r| r[j]).collect();
+        let (m, se) = mean_se(&col);
+        (m, se * se)
+    };
+    let (mut num, mut den) = (0.0, 0.0);
+    for j in 0..a[0].len() {
+        let ((ma, va), (mb, vb)) = (stats(a, j), stats(b, j));
+        num += (ma - mb).powi(2);
+        den += va + vb;
+    }
+    num / den
+}
+
+fn hslt_only(scene: &Scene, chains: usize, params: HalfVectorParams) -> PathMlt {
+    let mut settings = MltSettings::for_technique(vec![(MutationKind::HalfVector, 1.0)]);
+    settings.chains = chains;
+    // The run-to-run spread of HSLT-only chains is dominated by their starting paths and b, both from
+    // the seeding pass, so a larger pass buys more precision than longer chains.
+    settings.seed_paths = Some(65_536);
+    settings.mutation.halfvector = params;
+    PathMlt::new("hslt", bdpt(scene), settings)
+}
+
+fn check_against_bdpt(rel: &str, defines: &[(&str, &str)]) {
+    // Chains that start stationary (seeds drawn ∝ target) and run only the half-vector mutation keep
+    // every recorded state distributed as the target, so their image is unbiased even though HSLT
+    // alone is not ergodic. Six independent HSLT runs against six independent BDPT runs at 32 × 24
+    // (48 blocks of 4 × 4): the discrepancy statistic has mean ~1 and a spread of ~0.3 under the
+    // null, so 2.5 is about five standard deviations; the same statistic must see a 10% scale error.
+    let s = scene(rel, defines);
+    let started = std::time::Instant::now();
+    let (mut proposed, mut applicable_count, mut accepted, mut invalid) = (0, 0, 0, 0);
+    let mut failed = std::collections::BTreeMap::<String, u64>::new();
+    let mlt: Vec<Vec<f64>> = (0..8)
+        .map(|seed| {
+            let integrator = hslt_only(&s, 8192, HalfVectorParams::default());
+            let options = RenderOptions { spp: Some(128), seed: 40 + seed, ..Default::default() };
+            let out = hslt::integrators::Integrator::render(&integrator, &s, &options, &AtomicBool::new(false));
+            let img = out.film.to_image();
+            assert!(img.data.iter().all(|v| v.is_finite() && *v >= 0.0));
+            assert_eq!(out.stats.invalid_samples, 0);
+            let n = meta_u64(&out, "hslt.mlt.hslt.proposed");
+            proposed += n;
+            applicable_count += n - meta_u64(&out, "hslt.mlt.hslt.not_applicable");
+            accepted += meta_u64(&out, "hslt.mlt.hslt.accepted");
+            invalid += meta_u64(&out, "hslt.mlt.hslt.rejected_invalid");
+            for (k, v) in &out.metadata {
+                if let Some(reason) = k.strip_prefix("hslt.mlt.hslt.failed.") {
+                    *failed.entry(reason.to_string()).or_default() += v.parse::<u64>().unwrap();
+                }
+            }
+            blocks(&img)
+        })
+        .collect();
+    let limits = DepthLimits { max_depth: s.integrator.max_depth, rr_depth: s.integrator.rr_depth };
+    let settings = IntegratorSettings::new(limits, s.integrator.hide_emitters);
+    let bdpt_runs: Vec<Vec<f64>> = (0..8)
+        .map(|seed| {
+            let options = RenderOptions { spp: Some(128), seed: 400 + seed, ..Default::default() };
+            let out = make_with(IntegratorKind::Bdpt, &settings).render(&s, &options, &AtomicBool::new(false));
+            blocks(&out.film.to_image())
+        })
+        .collect();
+    let d = discrepancy(&mlt, &bdpt_runs);
+    let scaled: Vec<Vec<f64>> = mlt.iter().map(|r| r.iter().map(|v| v * 1.1).collect()).collect();
+    let d_scaled = discrepancy(&scaled, &bdpt_runs);
+    let flux = |runs: &[Vec<f64>]| mean_se(&runs.iter().map(|r| r.iter().sum::<f64>()).collect::<Vec<_>>());
+    let ((fm, fm_se), (fb, fb_se)) = (flux(&mlt), flux(&bdpt_runs));
+    eprintln!(
+        "{rel} {defines:?} HSLT-only vs BDPT: discrepancy {d:.3} (scaled by 1.1: {d_scaled:.3}); flux {fm:.4}±{fm_se:.4} \
+         vs {fb:.4}±{fb_se:.4}; {proposed} proposals, {applicable_count} applicable, acceptance among \
+         applicable {:.3}, failures {failed:?}; {:.1} s",
+        accepted as f64 / applicable_count as f64,
+        started.elapsed().as_secs_f64()
+    );
+    assert_eq!(invalid, 0, "no proposal may be invalid (NaN or negative)");
+    assert!(accepted > applicable_count / 10, "the mutation hardly ever moves: the test checks little");
+    assert!(d < 2.5, "HSLT-only chains differ from BDPT: discrepancy {d:.3}");
+    assert!(d_scaled > 2.5, "the comparison cannot see a 10% error ({d_scaled:.3})");
+    let flux_tol = 5.0 * (fm_se * fm_se + fb_se * fb_se).sqrt();
+    assert!((fm - fb).abs() <= flux_tol, "total flux {fm:.4} vs BDPT {fb:.4} (± {flux_tol:.4})");
+}
+
+#[test]
+fn hslt_only_chains_reproduce_bdpt_on_jewelry() {
+    check_against_bdpt("scenes/jewelry/scene.xml", &[("resx", "32"), ("resy", "24"), ("max_depth", "4")]);
+}
+
+#[test]
+fn hslt_only_chains_reproduce_bdpt_on_fig15() {
+    check_against_bdpt(
+        "scenes/fig15/scene.xml",
+        &[("resx", "32"), ("resy", "24"), ("max_depth", "4"), ("roughness", "0.1")],
+    );
+}
+
 #[test]
 #[ignore]
 fn debug_tolerance() {
