@@ -241,7 +241,8 @@ fn check_against_bdpt(rel: &str, defines: &[(&str, &str)]) {
         .map(|seed| {
             let integrator = hslt_only(&s, 8192, HalfVectorParams::default());
             let options = RenderOptions { spp: Some(128), seed: 40 + seed, ..Default::default() };
-            let out = hslt::integrators::Integrator::render(&integrator, &s, &options, &AtomicBool::new(false));
+            let out =
+                hslt::integrators::Integrator::render(&integrator, &s, &options, &AtomicBool::new(false));
             let img = out.film.to_image();
             assert!(img.data.iter().all(|v| v.is_finite() && *v >= 0.0));
             assert_eq!(out.stats.invalid_samples, 0);
@@ -263,7 +264,8 @@ fn check_against_bdpt(rel: &str, defines: &[(&str, &str)]) {
     let bdpt_runs: Vec<Vec<f64>> = (0..8)
         .map(|seed| {
             let options = RenderOptions { spp: Some(128), seed: 400 + seed, ..Default::default() };
-            let out = make_with(IntegratorKind::Bdpt, &settings).render(&s, &options, &AtomicBool::new(false));
+            let out =
+                make_with(IntegratorKind::Bdpt, &settings).render(&s, &options, &AtomicBool::new(false));
             blocks(&out.film.to_image())
         })
         .collect();
@@ -298,6 +300,188 @@ fn hslt_only_chains_reproduce_bdpt_on_fig15() {
         "scenes/fig15/scene.xml",
         &[("resx", "32"), ("resy", "24"), ("max_depth", "4"), ("roughness", "0.1")],
     );
+}
+
+/// Runs `chains` HSLT-only chains of `steps` mutations from seed draws and checks every recorded
+/// state and weight is finite; returns the summed statistics.
+fn run_chains(scene: &Scene, chains: usize, steps: usize, params: HalfVectorParams) -> MutationStats {
+    let bdpt = bdpt(scene);
+    let seeds = PathSeeds::run(scene, &bdpt, 9, 16_384, &AtomicBool::new(false));
+    assert!(seeds.candidates() > 0, "the scene carries no light");
+    let mut total = MutationStats::default();
+    let mut rng = Sampler::new(9, 0, 0);
+    for c in 0..chains {
+        let Some(start) = seeds.draw(scene, &bdpt, 9, rng.next_f64()) else { continue };
+        let mutation = Box::new(HalfVectorMutation::new(params));
+        let mut chain = Chain::new(
+            start,
+            vec![WeightedMutation { mutation, weight: 1.0 }],
+            TargetFunction::Luminance,
+            Sampler::new(9, c as u64, 1),
+        );
+        let mut ctx = PathContext::new(scene, &bdpt);
+        let mut record = |state: &PathState, weight: f64| {
+            assert!(weight.is_finite() && weight > 0.0, "recorded weight {weight}");
+            assert!(state.contribution.is_finite() && state.contribution.min_element() >= 0.0);
+            assert!(state.film.is_finite());
+        };
+        for _ in 0..steps {
+            chain.step(&mut ctx, &mut record);
+        }
+        total.add(&chain.stats()[0]);
+    }
+    total
+}
+
+fn describe(stats: &MutationStats) -> String {
+    let applied = stats.proposed - stats.not_applicable;
+    format!(
+        "{} proposed, {applied} applicable, acceptance among applicable {:.3}, rejected_zero {}, \
+         rejected_invalid {}, failures {:?}, mean Newton iterations {:.2}, mean step {:.4}",
+        stats.proposed,
+        stats.accepted as f64 / applied.max(1) as f64,
+        stats.rejected_zero,
+        stats.rejected_invalid,
+        stats.failed,
+        stats.sums.get("newton_iterations").unwrap_or(&0.0)
+            / stats.sums.get("converged_walks").unwrap_or(&1.0),
+        stats.sums.get("step_size").unwrap_or(&0.0) / applied.max(1) as f64
+    )
+}
+
+fn scene_from_xml(name: &str, xml: &str) -> Scene {
+    let path = std::env::temp_dir().join(format!("hslt-mutation-{name}-{}.xml", std::process::id()));
+    std::fs::write(&path, xml).unwrap();
+    let scene = load_scene(&path, &[]).unwrap();
+    std::fs::remove_file(&path).ok();
+    scene
+}
+
+#[test]
+fn near_specular_vertices_are_rejected_and_counted_never_nan() {
+    // α = 1e-3: steps of 1e-3 in h, Phong exponents of 2·10⁶; the walk's 1e-4 tolerance is then a
+    // tenth of a step, so failures and rejections are expected, invalid values never.
+    let s = scene(
+        "scenes/jewelry/scene.xml",
+        &[
+            ("resx", "32"),
+            ("resy", "24"),
+            ("max_depth", "4"),
+            ("ring_roughness", "0.001"),
+            ("gem_roughness", "0.001"),
+        ],
+    );
+    let stats = run_chains(&s, 256, 40, HalfVectorParams::default());
+    eprintln!("near-specular jewelry: {}", describe(&stats));
+    assert!(
+        stats.proposed > stats.not_applicable + 500,
+        "too few applicable proposals: {}",
+        describe(&stats)
+    );
+    assert_eq!(stats.rejected_invalid, 0);
+    assert_eq!(
+        stats.proposed,
+        stats.accepted
+            + stats.rejected
+            + stats.rejected_zero
+            + stats.rejected_invalid
+            + stats.not_applicable
+            + stats.failed_total()
+    );
+}
+
+#[test]
+fn grazing_paths_are_rejected_and_counted_never_nan() {
+    // Camera and light skim a rough metal plane from the same side, so wi ≈ wo and the half vector
+    // lies near the rim of the disk (|h⊥| → 1) where the Möbius map and the Jacobians are stiffest.
+    let s = scene_from_xml(
+        "grazing",
+        r#"<scene version="3.0.0">
+  <integrator type="bdpt"><integer name="max_depth" value="3" /></integrator>
+  <sensor type="perspective">
+    <float name="fov" value="20" />
+    <transform name="to_world"><lookat origin="0, -6, 0.25" target="0, 0, 0" up="0, 0, 1" /></transform>
+    <film type="hdrfilm"><integer name="width" value="32" /><integer name="height" value="24" /></film>
+  </sensor>
+  <shape type="rectangle">
+    <transform name="to_world"><scale value="10" /></transform>
+    <bsdf type="roughconductor"><string name="distribution" value="ggx" /><float name="alpha" value="0.8" /></bsdf>
+  </shape>
+  <shape type="rectangle">
+    <transform name="to_world"><scale value="0.3" /><rotate x="1" angle="-80" /><translate x="0.4" y="-6.5" z="0.35" /></transform>
+    <emitter type="area"><rgb name="radiance" value="50, 50, 50" /></emitter>
+  </shape>
+</scene>"#,
+    );
+    let bdpt = bdpt(&s);
+    let seeds = PathSeeds::run(&s, &bdpt, 9, 4096, &AtomicBool::new(false));
+    let mut rng = Sampler::new(1, 0, 0);
+    let radii: Vec<f64> = (0..200)
+        .filter_map(|_| seeds.draw(&s, &bdpt, 9, rng.next_f64()))
+        .filter(|x| x.vertices.len() == 3)
+        .map(|x| {
+            let c = path_constraints(&path_geometry(&x.vertices), &path_etas(&s, &x.vertices)).unwrap();
+            c.h[0].length()
+        })
+        .collect();
+    let (mean_radius, _) = mean_se(&radii);
+    assert!(mean_radius > 0.9, "the paths are not grazing: mean |h| {mean_radius}");
+    for stratify in [true, false] {
+        let params = HalfVectorParams { stratify, ..HalfVectorParams::default() };
+        let stats = run_chains(&s, 256, 40, params);
+        eprintln!("grazing plane (mean |h| {mean_radius:.3}, stratified {stratify}): {}", describe(&stats));
+        assert!(
+            stats.proposed > stats.not_applicable + 500,
+            "too few applicable proposals: {}",
+            describe(&stats)
+        );
+        assert_eq!(stats.rejected_invalid, 0);
+    }
+}
+
+#[test]
+fn paths_it_does_not_apply_to_are_left_alone() {
+    // fig15 seeds include all-diffuse paths (ground and sphere) and glossy ones, the Cornell box paths
+    // where the camera sees the light, and the caustic scene paths through a smooth glass ball (Dirac
+    // vertices).
+    let mut checked = [0usize; 3];
+    for (rel, defines) in [
+        ("scenes/fig15/scene.xml", vec![("resx", "32"), ("resy", "24"), ("max_depth", "4")]),
+        ("scenes/caustic/scene.xml", vec![("resx", "32"), ("resy", "32")]),
+        ("scenes/cornell-box/scene.xml", vec![("resx", "32"), ("resy", "32")]),
+    ] {
+        let s = scene(rel, &defines);
+        let bdpt = bdpt(&s);
+        let seeds = PathSeeds::run(&s, &bdpt, 3, 16_384, &AtomicBool::new(false));
+        let mut mutation = HalfVectorMutation::new(HalfVectorParams::default());
+        let mut ctx = PathContext::new(&s, &bdpt);
+        let mut rng = Sampler::new(3, 0, 0);
+        for _ in 0..3000 {
+            let Some(x) = seeds.draw(&s, &bdpt, 3, rng.next_f64()) else { continue };
+            let inner = &x.vertices[1..x.vertices.len() - 1];
+            let kind = if inner.is_empty() {
+                0
+            } else if inner.iter().any(|v| v.delta) {
+                1
+            } else if inner.iter().all(|v| matches!(v.class, hslt::path::ScatterClass::Diffuse)) {
+                2
+            } else {
+                continue;
+            };
+            let mut stats = MutationStats::default();
+            let rays = ctx.counters.rays;
+            let result = mutation.propose(&x, &mut ctx, &mut rng, &mut stats);
+            assert!(matches!(result, Err(Failure::NotApplicable)), "{rel}: {:?}", result.map(|p| p.t_ratio));
+            assert_eq!(ctx.counters.rays, rays, "a path it does not apply to costs no rays");
+            assert!(stats.sums.is_empty());
+            checked[kind] += 1;
+        }
+    }
+    eprintln!(
+        "not applicable: {} two-vertex, {} Dirac, {} all-diffuse paths",
+        checked[0], checked[1], checked[2]
+    );
+    assert!(checked.iter().all(|&n| n > 10), "cases not all exercised: {checked:?}");
 }
 
 #[test]
