@@ -571,3 +571,40 @@ fn half_vector_measure_matches_the_product_of_jacobians() {
     eprintln!("f_H identity checked on paths with (inner vertices: count) {checked:?}");
     assert!(checked.keys().any(|&n| n >= 2) && checked.values().sum::<usize>() > 500, "{checked:?}");
 }
+
+/// Measurement helper, not a check: acceptance and failures against the step scale, with and without
+/// stratification. `cargo test --test hslt_mutation -- --ignored acceptance_table --nocapture`.
+#[test]
+#[ignore]
+fn acceptance_table() {
+    for (rel, defines) in [
+        ("scenes/jewelry/scene.xml", vec![("resx", "64"), ("resy", "48"), ("max_depth", "4")]),
+        ("scenes/fig15/scene.xml", vec![("resx", "64"), ("resy", "48"), ("max_depth", "4")]),
+        (
+            "scenes/fig15/scene.xml",
+            vec![("resx", "64"), ("resy", "48"), ("max_depth", "4"), ("roughness", "0.1")],
+        ),
+    ] {
+        let s = scene(rel, &defines);
+        for stratify in [true, false] {
+            for step_scale in [0.5, 1.0, 2.0, 4.0] {
+                let params = HalfVectorParams { step_scale, stratify, ..HalfVectorParams::default() };
+                let out = sample_proposals(&s, 40_000, 8_000, params, 77);
+                let n = out.balance_valid.len();
+                let sums = &out.stats.sums;
+                println!(
+                    "{rel} {:?} stratify {stratify} scale {step_scale}: acceptance {:.3}, valid {:.3}, \
+                     Newton {:.2}, step {:.4}, rays/proposal {:.0}, failures {:?}",
+                    &defines[3..],
+                    out.accepted_sum / n as f64,
+                    out.valid as f64 / n as f64,
+                    sums.get("newton_iterations").unwrap_or(&0.0)
+                        / sums.get("converged_walks").unwrap_or(&1.0),
+                    sums.get("step_size").unwrap_or(&0.0) / n as f64,
+                    out.rays as f64 / n as f64,
+                    out.stats.failed
+                );
+            }
+        }
+    }
+}

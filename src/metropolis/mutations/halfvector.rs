@@ -11,7 +11,7 @@ use crate::manifold::{
     bandwidth_shares, invert_block, path_constraints, path_etas, path_geometry, step_sizes,
     walk_counting_rays, LocalGeometry, StepSizes, WalkError, WalkSettings,
 };
-use crate::path::{ScatterClass, Vertex, VertexKind};
+use crate::path::{PathView, ScatterClass, Vertex, VertexKind};
 use crate::sampling::Sampler;
 use crate::scene::Scene;
 
@@ -232,11 +232,12 @@ impl<'a> Mutation<PathState, PathContext<'a>> for HalfVectorMutation {
         .map_err(|e| Failure::Failed(walk_reason(e)))?;
         stats.add_sum("newton_iterations", forward.iterations as f64);
         stats.add_sum("converged_walks", 1.0);
-        let film_y = crate::path::PathView::whole(&forward.path)
-            .film_position(scene)
-            .ok_or(Failure::Failed("outside_image"))?;
+        // x_1 moved, so the image point did: a path leaving the film is outside the state space.
+        if PathView::whole(&forward.path).film_position(scene).is_none() {
+            return Err(Failure::Failed("outside_image"));
+        }
         let state = PathState::new(scene, forward.path).ok_or(Failure::Failed("zero_contribution"))?;
-        let prepared_y = self.prepare(scene, &state.vertices, film_y).map_err(Failure::Failed)?;
+        let prepared_y = self.prepare(scene, &state.vertices, state.film).map_err(Failure::Failed)?;
         // Reversibility: Y's walk to X's half vectors must come back to X, or the map from half vectors
         // to paths is not locally one-to-one here and the densities below would not describe it.
         let back = walk_counting_rays(
