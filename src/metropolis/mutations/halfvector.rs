@@ -1,7 +1,6 @@
-//! HSLT's half-vector space mutation (Kaplanyan, Hanika and Dachsbacher 2014, Sec. 5–6; method digest
-//! 2.4–2.7): every inner vertex's projected half vector gets a Möbius-shifted anisotropic Phong step
-//! sized by its roughness and by image-space stratification, the Newton walk moves the path there with
-//! x_0 and x_k fixed, and the move is weighed in half-vector measure f_H = f_A / |det J|.
+//! HSLT's half-vector space mutation (Kaplanyan, Hanika and Dachsbacher 2014, Sec. 5–6; digest 2.4–2.7):
+//! Möbius-shifted Phong steps of every inner vertex's half vector, sized by roughness and image-space
+//! stratification, a Newton walk there with x_0 and x_k fixed, weighed in half-vector measure f_A/|det J|.
 
 use glam::{DMat2, DVec2, DVec3};
 
