@@ -127,12 +127,12 @@ fn check_detailed_balance(rel: &str, defines: &[(&str, &str)], params: HalfVecto
     // Independent passes, each with its own seeding pass: seed draws follow an empirical
     // distribution whose heavy-tailed weights (MIS-weighted caustic strategies) repeat some paths many
     // times, so only the spread between passes is an honest standard error of the identities.
-    let passes = 12;
+    let passes = 40;
     let mut per_pass = (Vec::new(), Vec::new());
     let mut total = ProposalSample::default();
     let mut n = 0;
     for pass in 0..passes {
-        let out = sample_proposals(&s, 40_000, 6_000, params, 100 + pass);
+        let out = sample_proposals(&s, 20_000, 6_000, params, 100 + pass);
         per_pass.0.push(out.balance_valid.iter().sum::<f64>() / out.balance_valid.len() as f64);
         per_pass.1.push(out.balance_tail.iter().sum::<f64>() / out.balance_tail.len() as f64);
         n += out.balance_valid.len();
@@ -163,9 +163,10 @@ fn check_detailed_balance(rel: &str, defines: &[(&str, &str)], params: HalfVecto
     assert!(n > 2000, "too few applicable paths ({n}): the test checks nothing");
     assert!(total.valid > n / 10, "only {} of {n} proposals valid", total.valid);
     assert!(total.ratio_checks > 50);
-    // Under detailed balance both differences have mean 0. With 11 degrees of freedom |t| > 5 has
-    // probability ~4e-4, while a ratio off by a constant factor c moves the first by
-    // (c − 1)·P(valid), many standard errors for |c − 1| ≳ 0.1 at these sample sizes.
+    // Under detailed balance both differences have mean 0. With 39 degrees of freedom |t| > 5 has
+    // probability ~1e-5. Measured power: leaving |det J(X)| / |det J(Y)| out of the ratio moves the
+    // second identity on fig15 by ten standard errors (-0.062 ± 0.006); the kernel ratio alone is
+    // close to 1 at these step sizes, so its bookkeeping is checked exactly (`ratio_checks`) instead.
     assert!(bv.abs() <= 5.0 * bv_se, "E[R 1valid] - P(valid) = {bv} ± {bv_se}");
     assert!(bt.abs() <= 5.0 * bt_se, "E[R 1(R<1)] - P(R>1) = {bt} ± {bt_se}");
 }
