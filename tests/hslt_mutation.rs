@@ -322,6 +322,96 @@ fn hslt_only_chains_reproduce_bdpt_on_fig15() {
     );
 }
 
+/// For one seeding pass: HSLT-only chains and motionless chains from the same starts (drawn ∝ target
+/// among applicable paths), each recording the film block of every state it records, weighted as
+/// the chain records it. Returns per block (HSLT − motionless) / (chains · steps): the mass the
+/// mutation moved into the block. Both chains start from the target restricted to the paths HSLT
+/// applies to, which HSLT maps onto itself, so the expected shift is 0; sharing the starts removes
+/// their noise, which dominates any image of chains this short.
+fn block_shift(scene: &Scene, seed: u64, chains: usize, steps: usize, params: HalfVectorParams) -> Vec<f64> {
+    const GRID: (usize, usize) = (8, 6);
+    let bdpt = bdpt(scene);
+    let seeds = PathSeeds::run(scene, &bdpt, seed, 20_000, &AtomicBool::new(false));
+    let mut rng = Sampler::new(seed, 7, 7);
+    let (w, h) = (scene.film.width as f32, scene.film.height as f32);
+    let block = |state: &PathState| {
+        let bx = ((state.film.x / w * GRID.0 as f32) as usize).min(GRID.0 - 1);
+        let by = ((state.film.y / h * GRID.1 as f32) as usize).min(GRID.1 - 1);
+        by * GRID.0 + bx
+    };
+    let mut shift = vec![0.0; GRID.0 * GRID.1];
+    let mut started = 0;
+    while started < chains {
+        let Some(start) = seeds.draw(scene, &bdpt, seed, rng.next_f64()) else { continue };
+        if !applicable(&start.vertices) {
+            continue;
+        }
+        started += 1;
+        let start_target = target(&start);
+        // A motionless chain records its start with weight 1 / target at every step.
+        shift[block(&start)] -= steps as f64;
+        let mutation = Box::new(HalfVectorMutation::new(params));
+        let mut chain = Chain::new(
+            start,
+            vec![WeightedMutation { mutation, weight: 1.0 }],
+            TargetFunction::Luminance,
+            Sampler::new(seed, started as u64, 3),
+        );
+        let mut ctx = PathContext::new(scene, &bdpt);
+        let mut record = |state: &PathState, weight: f64| shift[block(state)] += weight * target(state);
+        for _ in 0..steps {
+            chain.step(&mut ctx, &mut record);
+        }
+        assert!(start_target > 0.0);
+    }
+    shift.iter().map(|v| v / (chains * steps) as f64).collect()
+}
+
+fn check_block_shift(rel: &str, defines: &[(&str, &str)], params: HalfVectorParams) {
+    let s = scene(rel, defines);
+    let started = std::time::Instant::now();
+    let runs: Vec<Vec<f64>> = (0..16).map(|r| block_shift(&s, 300 + r, 600, 40, params)).collect();
+    let mut t2 = Vec::new();
+    let mut moved = 0.0;
+    for j in 0..runs[0].len() {
+        let col: Vec<f64> = runs.iter().map(|r| r[j]).collect();
+        let (m, se) = mean_se(&col);
+        moved += col.iter().map(|v| v.abs()).sum::<f64>() / col.len() as f64;
+        if se > 0.0 {
+            t2.push((m / se).powi(2));
+        }
+    }
+    let mean_t2 = t2.iter().sum::<f64>() / t2.len() as f64;
+    eprintln!(
+        "{rel} {defines:?}: mean t² of the HSLT block shift {mean_t2:.3} over {} blocks (16 runs); mass moved \
+         between blocks {moved:.4}; {:.1} s",
+        t2.len(),
+        started.elapsed().as_secs_f64()
+    );
+    assert!(t2.len() >= 10 && moved > 1e-3, "the chains hardly move: the test checks nothing");
+    // Each t² of 16 runs follows F(1, 15): mean 1.15, variance 3.4, so the mean of ~40 independent
+    // blocks has a standard deviation of ~0.3; 2.7 is five of them above the mean.
+    assert!(mean_t2 < 2.7, "HSLT moves mass between film blocks: mean t² {mean_t2:.3}");
+}
+
+#[test]
+fn hslt_moves_no_mass_on_fig15() {
+    check_block_shift(
+        "scenes/fig15/scene.xml",
+        &[("resx", "64"), ("resy", "48"), ("max_depth", "4"), ("roughness", "0.1")],
+        HalfVectorParams::default(),
+    );
+}
+
+#[test]
+fn hslt_moves_no_mass_on_jewelry() {
+    check_block_shift(
+        "scenes/jewelry/scene.xml",
+        &[("resx", "64"), ("resy", "48"), ("max_depth", "4")],
+        HalfVectorParams { stratify: false, ..HalfVectorParams::default() },
+    );
+}
+
 /// Runs `chains` HSLT-only chains of `steps` mutations from seed draws and checks every recorded
 /// state and weight is finite; returns the summed statistics.
 fn run_chains(scene: &Scene, chains: usize, steps: usize, params: HalfVectorParams) -> MutationStats {
