@@ -389,9 +389,13 @@ fn check_block_shift(rel: &str, defines: &[(&str, &str)], params: HalfVectorPara
         started.elapsed().as_secs_f64()
     );
     assert!(t2.len() >= 10 && moved > 1e-3, "the chains hardly move: the test checks nothing");
-    // Each t² of 16 runs follows F(1, 15): mean 1.15, variance 3.4, so the mean of ~40 independent
-    // blocks has a standard deviation of ~0.3; 2.7 is five of them above the mean.
-    assert!(mean_t2 < 2.7, "HSLT moves mass between film blocks: mean t² {mean_t2:.3}");
+    // Each t² of 16 runs follows F(1, 15): mean 1.15, variance 3.4, so the mean over n blocks has a
+    // standard deviation of about sqrt(3.4 / n) (blocks are nearly independent: mass moves a few
+    // pixels); the bound is five of them above the mean. Measured power: without |det J(X)| /
+    // |det J(Y)| in the ratio the statistic is 3.0 (jewelry) and 5.9 (fig15), without the kernel ratio
+    // 4.5 on jewelry; the correct ratio gives 1.3 and 0.9.
+    let bound = 1.15 + 5.0 * (3.4 / t2.len() as f64).sqrt();
+    assert!(mean_t2 < bound, "HSLT moves mass between film blocks: mean t² {mean_t2:.3} (bound {bound:.2})");
 }
 
 #[test]
