@@ -19,6 +19,8 @@ const DEGENERATE_HALF_VECTOR: f64 = 1e-9;
 /// `p + d.x·tu + d.y·tv` and turns its shading normal to `normalize(n + d.x·dn_du + d.y·dn_dv)`.
 /// (tu, tv) are the Gram–Schmidt orthonormalised (∂p/∂u, ∂p/∂v), and (dn_du, dn_dv) went through the
 /// same linear map, so offsets are in length units and 2×2 determinants are area ratios.
+/// `frame_ref` is the fixed direction the half-vector projection frame is built from (see
+/// `shading_frame`); it does not turn with the normal.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct LocalGeometry {
     pub p: DVec3,
@@ -28,6 +30,21 @@ pub struct LocalGeometry {
     pub tv: DVec3,
     pub dn_du: DVec3,
     pub dn_dv: DVec3,
+    pub frame_ref: DVec3,
+}
+
+/// The projection frame's reference direction on a surface without a (u, v) parameterisation, as a
+/// function of the shading normal only: mesh triangles without texture coordinates take ∂p/∂u along
+/// an arbitrary edge, so a frame built from it rotates arbitrarily from one triangle to the next and
+/// the projected half vector jumps at every edge, which stalls the Newton walk there (digest 2.8).
+/// The interpolated normal is continuous, so this frame only jumps where |n·y| crosses 0.9; the
+/// threshold keeps |reference − n (reference·n)| ≥ 0.43, far from the frame's singularity.
+pub fn normal_frame_reference(n: DVec3) -> DVec3 {
+    if n.y.abs() < 0.9 {
+        DVec3::Y
+    } else {
+        DVec3::X
+    }
 }
 
 /// Why a vertex's constraint cannot be evaluated.
@@ -65,6 +82,7 @@ impl LocalGeometry {
             tv: dvec3(v.frame.t),
             dn_du: DVec3::ZERO,
             dn_dv: DVec3::ZERO,
+            frame_ref: dvec3(v.frame.s),
         };
         let len_u = dpdu.length();
         if !(len_u > 0.0) || !len_u.is_finite() || !dpdv.is_finite() {
@@ -86,10 +104,11 @@ impl LocalGeometry {
         // rounding so the offset model's derivative is exactly (dn_du, dn_dv).
         let tangential = |w: DVec3| w - n * n.dot(w);
         let (dn_du, dn_dv) = (tangential(dn_du), tangential(dn_dv));
+        let frame_ref = if d.from_uv { tu } else { normal_frame_reference(n) };
         if !dn_du.is_finite() || !dn_dv.is_finite() {
-            return LocalGeometry { tu, tv, ..fallback };
+            return LocalGeometry { tu, tv, frame_ref, ..fallback };
         }
-        LocalGeometry { p: dvec3(v.p), ng, n, tu, tv, dn_du, dn_dv }
+        LocalGeometry { p: dvec3(v.p), ng, n, tu, tv, dn_du, dn_dv, frame_ref }
     }
 
     /// World displacement of a tangent offset.
@@ -104,10 +123,11 @@ impl LocalGeometry {
         LocalGeometry { p: self.p + self.displacement(offset), n, ..*self }
     }
 
-    /// The orthonormal shading frame (s, t, n) in which half vectors are projected: s is tu made
-    /// orthogonal to n, t = n × s. For a surface vertex this is the vertex's own `Frame`.
+    /// The orthonormal frame (s, t, n) in which half vectors are projected: s is `frame_ref` made
+    /// orthogonal to n, t = n × s. For a surface with a (u, v) parameterisation this is the vertex's
+    /// own shading `Frame`; without one, a frame that is continuous across triangles.
     pub fn shading_frame(&self) -> Option<(DVec3, DVec3)> {
-        let s = (self.tu - self.n * self.tu.dot(self.n)).try_normalize()?;
+        let s = (self.frame_ref - self.n * self.frame_ref.dot(self.n)).try_normalize()?;
         Some((s, self.n.cross(s)))
     }
 }
@@ -223,9 +243,10 @@ fn vertex_constraint(
     let column_cur = |d: DVec3, dn: DVec3| {
         let dh_raw = -project_off(wi, d, len_i) - project_off(wo, d, len_o) * eta_rel;
         let dh = normalise(dh_raw);
-        let s_raw = cur.tu - cur.n * cur.tu.dot(cur.n);
+        let r = cur.frame_ref;
+        let s_raw = r - cur.n * r.dot(cur.n);
         let s_len = s_raw.length();
-        let ds_raw = -cur.n * cur.tu.dot(dn) - dn * cur.tu.dot(cur.n);
+        let ds_raw = -cur.n * r.dot(dn) - dn * r.dot(cur.n);
         let ds = (ds_raw - s * s.dot(ds_raw)) / s_len;
         let dt = dn.cross(s) + cur.n.cross(ds);
         DVec2::new(dh.dot(s) + h_dir.dot(ds), dh.dot(t) + h_dir.dot(dt))
@@ -337,6 +358,7 @@ mod tests {
             tv,
             dn_du: tangential(random_vec(rng) * 0.8),
             dn_dv: tangential(random_vec(rng) * 0.8),
+            frame_ref: tu,
         }
     }
 

@@ -10,11 +10,14 @@ pub mod walk;
 
 pub use blocktri::{invert_block, BlockLu, BlockTridiagonal, LogDet, Singular};
 pub use constraint::{
-    half_vector, half_vector_constraint, path_constraints, path_etas, path_geometry, path_half_vectors,
-    ConstraintError, LocalGeometry, PathConstraints, VertexConstraint,
+    half_vector, half_vector_constraint, normal_frame_reference, path_constraints, path_etas, path_geometry,
+    path_half_vectors, ConstraintError, LocalGeometry, PathConstraints, VertexConstraint,
 };
 pub use sampling::{
     bandwidth_shares, beckmann_to_phong, mobius, mobius_inverse, step_sizes, HalfVectorProposal,
     PhongDiskLobe, StepSizes,
 };
-pub use walk::{corrector_pass, walk, CorrectorFailure, WalkError, WalkResult, WalkSettings};
+pub use walk::{
+    corrector_pass, corrector_pass_counting_rays, walk, walk_counting_rays, CorrectorFailure, WalkError,
+    WalkResult, WalkSettings,
+};

@@ -93,6 +93,19 @@ pub fn walk(
     target: &[DVec2],
     settings: &WalkSettings,
 ) -> Result<WalkResult, WalkError> {
+    walk_counting_rays(scene, path, eta, target, settings, &mut 0)
+}
+
+/// `walk`, adding the rays its corrector casts to `rays` (whether it converges or not), so mutations
+/// can report their cost in the render's ray counters.
+pub fn walk_counting_rays(
+    scene: &Scene,
+    path: &[Vertex],
+    eta: &[f64],
+    target: &[DVec2],
+    settings: &WalkSettings,
+    rays: &mut u64,
+) -> Result<WalkResult, WalkError> {
     assert!(path.len() >= 3 && target.len() == path.len() - 2, "one target per inner vertex");
     let mut current = path.to_vec();
     let mut constraints = path_constraints(&path_geometry(&current), eta)?;
@@ -111,9 +124,13 @@ pub fn walk(
         // Three step sizes at once, so each corrector ray cast is a batch (digest 2.5's halving,
         // three halvings per pass).
         let fractions = [step, step * 0.5, step * 0.25];
-        let candidates = corrector_pass(scene, &current, &fractions, |i, fraction| {
-            (geometry[i].p + geometry[i].displacement(dx[i - 1] * fraction)).as_vec3()
-        });
+        let candidates = corrector_pass_counting_rays(
+            scene,
+            &current,
+            &fractions,
+            |i, fraction| (geometry[i].p + geometry[i].displacement(dx[i - 1] * fraction)).as_vec3(),
+            rays,
+        );
         let mut accepted = false;
         for (fraction, candidate) in fractions.into_iter().zip(candidates) {
             let Ok(moved) = candidate else { continue };
@@ -156,6 +173,17 @@ pub fn corrector_pass(
     fractions: &[f64],
     predicted: impl Fn(usize, f64) -> Vec3,
 ) -> Vec<Result<Vec<Vertex>, CorrectorFailure>> {
+    corrector_pass_counting_rays(scene, current, fractions, predicted, &mut 0)
+}
+
+/// `corrector_pass`, adding the rays it casts to `rays`.
+pub fn corrector_pass_counting_rays(
+    scene: &Scene,
+    current: &[Vertex],
+    fractions: &[f64],
+    predicted: impl Fn(usize, f64) -> Vec3,
+    rays_cast: &mut u64,
+) -> Vec<Result<Vec<Vertex>, CorrectorFailure>> {
     let k = current.len() - 1;
     let mut out: Vec<Result<Vec<Vertex>, CorrectorFailure>> =
         fractions.iter().map(|_| Ok(vec![current[0]])).collect();
@@ -168,15 +196,20 @@ pub fn corrector_pass(
         for (c, candidate) in out.iter().enumerate() {
             let Ok(built) = candidate else { continue };
             let from = built[i - 1];
-            let aim = predicted(i, fractions[c]) - from.p;
-            let Some(dir) = aim.try_normalize() else { continue };
+            let target = predicted(i, fractions[c]);
+            let Some(dir) = (target - from.p).try_normalize() else { continue };
             let origin = if from.is_surface() { offset_origin(from.p, from.ng, dir) } else { from.p };
+            // Aim from the offset origin: a ray parallel to from→target but displaced by the origin
+            // offset (1e-4 relative) lands that far from the prediction, a noise floor the walk then
+            // cannot converge below.
+            let Some(dir) = (target - origin).try_normalize() else { continue };
             rays.push(Ray::new(origin, dir));
             owners.push(c);
         }
         hits.clear();
         hits.resize(rays.len(), None);
         scene.accel().intersect_batch(&rays, &mut hits);
+        *rays_cast += rays.len() as u64;
         for ((ray, hit), &c) in rays.iter().zip(&hits).zip(&owners) {
             let result = match hit.as_ref().and_then(|h| SurfaceInteraction::from_hit(scene, ray, h)) {
                 None => Err(CorrectorFailure::Missed { vertex: i }),
@@ -205,6 +238,7 @@ pub fn corrector_pass(
         let end = current[k];
         let near = built[k - 1];
         let end_normal = if end.is_surface() { end.ng } else { Vec3::ZERO };
+        *rays_cast += 1;
         if scene.occluded_between(near.p, near.ng, end.p, end_normal) {
             *candidate = Err(CorrectorFailure::Occluded);
             continue;

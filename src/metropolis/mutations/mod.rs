@@ -3,6 +3,8 @@
 //! densities T(y→x)/T(x→y) in the measure of `PathState::contribution` (product area measure with the
 //! Dirac deltas of specular vertices cancelled, see `Vertex::dirac_lobe`).
 
+pub mod halfvector;
+
 use super::chain::Mutation;
 use super::path_state::{PathContext, PathState};
 use crate::scene::Scene;
@@ -83,7 +85,7 @@ impl MutationKind {
 
     /// Whether this build implements the mutation.
     pub fn available(self) -> bool {
-        false
+        matches!(self, MutationKind::HalfVector)
     }
 }
 
@@ -92,11 +94,13 @@ impl MutationKind {
 pub struct MutationSettings {
     /// MEMLT's perturbation size λ (Jakob & Marschner 2012; the HSLT paper's Figure 16 uses 50).
     pub lambda: f64,
+    /// HSLT's half-vector mutation: step scale, stratification, image step and walk constants.
+    pub halfvector: halfvector::HalfVectorParams,
 }
 
 impl Default for MutationSettings {
     fn default() -> MutationSettings {
-        MutationSettings { lambda: 50.0 }
+        MutationSettings { lambda: 50.0, halfvector: halfvector::HalfVectorParams::default() }
     }
 }
 
@@ -104,16 +108,16 @@ impl Default for MutationSettings {
 /// refuses such mixtures with a message before rendering).
 pub fn make<'a>(
     kind: MutationKind,
-    _settings: &MutationSettings,
+    settings: &MutationSettings,
     _scene: &Scene,
 ) -> Option<Box<dyn Mutation<PathState, PathContext<'a>>>> {
     match kind {
+        MutationKind::HalfVector => Some(Box::new(halfvector::HalfVectorMutation::new(settings.halfvector))),
         MutationKind::Bidirectional
         | MutationKind::Lens
         | MutationKind::Caustic
         | MutationKind::MultiChain
-        | MutationKind::Manifold
-        | MutationKind::HalfVector => None,
+        | MutationKind::Manifold => None,
     }
 }
 

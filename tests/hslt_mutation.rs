@@ -1,0 +1,705 @@
+//! The HSLT half-vector mutation (Kaplanyan et al. 2014): its ratio matches the transition densities
+//! evaluated both ways, detailed balance holds statistically for paths drawn from the target, chains
+//! that run only this mutation reproduce BDPT, and stiff input is rejected and counted, never NaN.
+
+use hslt::cli::load_scene;
+use hslt::integrators::{make_with, Bdpt, DepthLimits, IntegratorKind, IntegratorSettings};
+use hslt::manifold::{path_constraints, path_etas, path_geometry};
+use hslt::metropolis::mutations::halfvector::{applicable, HalfVectorMutation, HalfVectorParams};
+use hslt::metropolis::{
+    Chain, Failure, MltSettings, Mutation, MutationKind, MutationStats, PathContext, PathMlt, PathSeeds,
+    PathState, TargetFunction, WeightedMutation,
+};
+use hslt::render::RenderOptions;
+use hslt::sampling::Sampler;
+use hslt::scene::Scene;
+use hslt::spectrum::luminance;
+use std::path::Path;
+use std::sync::atomic::AtomicBool;
+
+fn scene(rel: &str, defines: &[(&str, &str)]) -> Scene {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(rel);
+    load_scene(&path, defines).unwrap_or_else(|e| panic!("{rel}: {e:#}"))
+}
+
+fn bdpt(scene: &Scene) -> Bdpt {
+    let limits = DepthLimits { max_depth: scene.integrator.max_depth, rr_depth: scene.integrator.rr_depth };
+    Bdpt::new(limits, scene.integrator.hide_emitters)
+}
+
+fn target(state: &PathState) -> f64 {
+    luminance(state.contribution) as f64
+}
+
+/// Mean and standard error of the mean of independent values.
+fn mean_se(values: &[f64]) -> (f64, f64) {
+    let n = values.len() as f64;
+    let mean = values.iter().sum::<f64>() / n;
+    let var = values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1.0);
+    (mean, (var / n).sqrt())
+}
+
+fn ln_det_j(scene: &Scene, path: &[hslt::path::Vertex]) -> f64 {
+    let c = path_constraints(&path_geometry(path), &path_etas(scene, path)).unwrap();
+    c.jacobian.factor().unwrap().log_det().ln_abs
+}
+
+/// What many single proposals from target-distributed paths gave.
+#[derive(Default)]
+struct ProposalSample {
+    /// Per applicable proposal: R·1{valid} − 1{valid} and R·1{R<1} − 1{R>1}, with
+    /// R = target(y) T(y→x) / (target(x) T(x→y)); both have mean 0 under detailed balance.
+    balance_valid: Vec<f64>,
+    balance_tail: Vec<f64>,
+    valid: usize,
+    accepted_sum: f64,
+    not_applicable: usize,
+    stats: MutationStats,
+    ratio_checks: usize,
+    rays: u64,
+}
+
+/// Draws paths ∝ target from a seeding pass and proposes once from each.
+fn sample_proposals(
+    scene: &Scene,
+    seed_paths: usize,
+    draws: usize,
+    params: HalfVectorParams,
+    seed: u64,
+) -> ProposalSample {
+    let bdpt = bdpt(scene);
+    let seeds = PathSeeds::run(scene, &bdpt, seed, seed_paths, &AtomicBool::new(false));
+    assert!(seeds.candidates() > 100, "the seeding pass found too few paths");
+    let mut mutation = HalfVectorMutation::new(params);
+    let mut ctx = PathContext::new(scene, &bdpt);
+    let mut rng = Sampler::new(seed, 1, 2);
+    let mut out = ProposalSample::default();
+    for _ in 0..draws {
+        let Some(x) = seeds.draw(scene, &bdpt, seed, rng.next_f64()) else { continue };
+        let rays_before = ctx.counters.rays;
+        let proposal = mutation.propose(&x, &mut ctx, &mut rng, &mut out.stats);
+        // Every applicable proposal walks, and every walk casts rays (at least one corrector pass).
+        let cast = ctx.counters.rays - rays_before;
+        assert!(matches!(proposal, Err(Failure::NotApplicable)) || cast > 0, "rays were not counted");
+        out.rays += cast;
+        let (valid, r) = match proposal {
+            Err(Failure::NotApplicable) => {
+                assert!(!applicable(&x.vertices));
+                out.not_applicable += 1;
+                continue;
+            }
+            Err(Failure::Failed(reason)) => {
+                *out.stats.failed.entry(reason).or_insert(0) += 1;
+                (false, 0.0)
+            }
+            Ok(p) => {
+                assert!(p.t_ratio.is_finite() && p.t_ratio >= 0.0, "ratio {}", p.t_ratio);
+                let y = &p.state;
+                assert_eq!(y.vertices.len(), x.vertices.len());
+                assert!(y.contribution.is_finite() && target(y) > 0.0);
+                // The returned ratio is the densities of both directions in the area-measure form.
+                if out.ratio_checks < 200 && p.t_ratio > 0.0 {
+                    let forward = mutation.transition_log_density(scene, &x, y).unwrap();
+                    let backward = mutation.transition_log_density(scene, y, &x).unwrap();
+                    let expected =
+                        backward + ln_det_j(scene, &x.vertices) - forward - ln_det_j(scene, &y.vertices);
+                    assert!(
+                        (p.t_ratio.ln() - expected).abs() < 1e-9 * (1.0 + expected.abs()),
+                        "ln ratio {} but densities give {expected}",
+                        p.t_ratio.ln()
+                    );
+                    out.ratio_checks += 1;
+                }
+                (true, target(y) * p.t_ratio / target(&x))
+            }
+        };
+        out.balance_valid.push(if valid { r - 1.0 } else { 0.0 });
+        out.balance_tail.push(if r < 1.0 { r } else { 0.0 } - if r > 1.0 { 1.0 } else { 0.0 });
+        out.valid += valid as usize;
+        out.accepted_sum += r.min(1.0);
+    }
+    out
+}
+
+fn check_detailed_balance(rel: &str, defines: &[(&str, &str)], params: HalfVectorParams) {
+    let s = scene(rel, defines);
+    let started = std::time::Instant::now();
+    // Independent passes, each with its own seeding pass: seed draws follow an empirical
+    // distribution whose heavy-tailed weights (MIS-weighted caustic strategies) repeat some paths many
+    // times, so only the spread between passes is an honest standard error of the identities.
+    let passes = 40;
+    let mut per_pass = (Vec::new(), Vec::new());
+    let mut total = ProposalSample::default();
+    let mut n = 0;
+    for pass in 0..passes {
+        let out = sample_proposals(&s, 20_000, 6_000, params, 100 + pass);
+        per_pass.0.push(out.balance_valid.iter().sum::<f64>() / out.balance_valid.len() as f64);
+        per_pass.1.push(out.balance_tail.iter().sum::<f64>() / out.balance_tail.len() as f64);
+        n += out.balance_valid.len();
+        total.valid += out.valid;
+        total.accepted_sum += out.accepted_sum;
+        total.not_applicable += out.not_applicable;
+        total.ratio_checks += out.ratio_checks;
+        total.rays += out.rays;
+        total.stats.add(&out.stats);
+    }
+    let (bv, bv_se) = mean_se(&per_pass.0);
+    let (bt, bt_se) = mean_se(&per_pass.1);
+    let sums = &total.stats.sums;
+    eprintln!(
+        "{rel} {defines:?}: {n} applicable proposals ({} not applicable), valid {:.3}, mean acceptance {:.3}; \
+         E[R 1valid] - P(valid) = {bv:.4} ± {bv_se:.4}; E[R 1(R<1)] - P(R>1) = {bt:.4} ± {bt_se:.4} \
+         ({passes} passes); failures {:?}; mean Newton iterations {:.2}; mean step {:.4}; {:.0} rays per \
+         proposal; {:.1} s",
+        total.not_applicable,
+        total.valid as f64 / n as f64,
+        total.accepted_sum / n as f64,
+        total.stats.failed,
+        sums.get("newton_iterations").unwrap_or(&0.0) / sums.get("converged_walks").unwrap_or(&1.0),
+        sums.get("step_size").unwrap_or(&0.0) / n as f64,
+        total.rays as f64 / n as f64,
+        started.elapsed().as_secs_f64()
+    );
+    assert!(n > 2000, "too few applicable paths ({n}): the test checks nothing");
+    assert!(total.valid > n / 10, "only {} of {n} proposals valid", total.valid);
+    assert!(total.ratio_checks > 50);
+    // Under detailed balance both differences have mean 0. With 39 degrees of freedom |t| > 5 has
+    // probability ~1e-5. Measured power: leaving |det J(X)| / |det J(Y)| out of the ratio moves the
+    // second identity on fig15 by ten standard errors (-0.062 ± 0.006); the kernel ratio alone is
+    // close to 1 at these step sizes, so its bookkeeping is checked exactly (`ratio_checks`) instead.
+    assert!(bv.abs() <= 5.0 * bv_se, "E[R 1valid] - P(valid) = {bv} ± {bv_se}");
+    assert!(bt.abs() <= 5.0 * bt_se, "E[R 1(R<1)] - P(R>1) = {bt} ± {bt_se}");
+}
+
+#[test]
+fn detailed_balance_on_jewelry() {
+    check_detailed_balance(
+        "scenes/jewelry/scene.xml",
+        &[("resx", "64"), ("resy", "48"), ("max_depth", "4")],
+        HalfVectorParams::default(),
+    );
+}
+
+#[test]
+fn detailed_balance_on_jewelry_without_stratification() {
+    // BSDF steps only (paper Sec. 6.1 without 6.2): larger moves, the same identities.
+    check_detailed_balance(
+        "scenes/jewelry/scene.xml",
+        &[("resx", "64"), ("resy", "48"), ("max_depth", "4")],
+        HalfVectorParams { stratify: false, ..HalfVectorParams::default() },
+    );
+}
+
+#[test]
+fn detailed_balance_on_fig15() {
+    check_detailed_balance(
+        "scenes/fig15/scene.xml",
+        &[("resx", "64"), ("resy", "48"), ("max_depth", "4"), ("roughness", "0.1")],
+        HalfVectorParams::default(),
+    );
+}
+
+fn meta<'a>(out: &'a hslt::integrators::RenderOutput, key: &str) -> Option<&'a str> {
+    out.metadata.iter().find(|(k, _)| k == key).map(|(_, v)| v.as_str())
+}
+
+fn meta_u64(out: &hslt::integrators::RenderOutput, key: &str) -> u64 {
+    meta(out, key).map_or(0, |v| v.parse().unwrap())
+}
+
+/// Block means (4 × 4 pixels, channel-averaged) of an image.
+fn blocks(img: &hslt::image::ImageBuf) -> Vec<f64> {
+    let (bw, nx, ny) = (4, img.width / 4, img.height / 4);
+    let mut out = vec![0.0; nx * ny];
+    for y in 0..ny * bw {
+        for x in 0..nx * bw {
+            let p = img.pixel(x, y);
+            out[(y / bw) * nx + x / bw] += (p[0] + p[1] + p[2]) as f64 / (3.0 * (bw * bw) as f64);
+        }
+    }
+    out
+}
+
+/// Σ_j (ā_j − b̄_j)² / Σ_j (s²_a,j / K_a + s²_b,j / K_b) over blocks j: about 1 when both sets of
+/// independent runs have the same expectation, larger with a bias.
+fn discrepancy(a: &[Vec<f64>], b: &[Vec<f64>]) -> f64 {
+    let stats = |runs: &[Vec<f64>], j: usize| {
+        let col: Vec<f64> = runs.iter().map(|r| r[j]).collect();
+        let (m, se) = mean_se(&col);
+        (m, se * se)
+    };
+    let (mut num, mut den) = (0.0, 0.0);
+    for j in 0..a[0].len() {
+        let ((ma, va), (mb, vb)) = (stats(a, j), stats(b, j));
+        num += (ma - mb).powi(2);
+        den += va + vb;
+    }
+    num / den
+}
+
+fn hslt_only(scene: &Scene, chains: usize, params: HalfVectorParams) -> PathMlt {
+    let mut settings = MltSettings::for_technique(vec![(MutationKind::HalfVector, 1.0)]);
+    settings.chains = chains;
+    // The run-to-run spread of HSLT-only chains is dominated by their starting paths and b, both from
+    // the seeding pass, so a larger pass buys more precision than longer chains.
+    settings.seed_paths = Some(65_536);
+    settings.mutation.halfvector = params;
+    PathMlt::new("hslt", bdpt(scene), settings)
+}
+
+fn check_against_bdpt(rel: &str, defines: &[(&str, &str)]) {
+    // Chains that start stationary (seeds drawn ∝ target) and run only the half-vector mutation keep
+    // every recorded state distributed as the target, so their image is unbiased even though HSLT
+    // alone is not ergodic. Six independent HSLT runs against six independent BDPT runs at 32 × 24
+    // (48 blocks of 4 × 4): the discrepancy statistic has mean ~1 and a spread of ~0.3 under the
+    // null, so 2.5 is about five standard deviations; the same statistic must see a 10% scale error.
+    let s = scene(rel, defines);
+    let started = std::time::Instant::now();
+    let (mut proposed, mut applicable_count, mut accepted, mut invalid) = (0, 0, 0, 0);
+    let mut failed = std::collections::BTreeMap::<String, u64>::new();
+    let mlt: Vec<Vec<f64>> = (0..8)
+        .map(|seed| {
+            let integrator = hslt_only(&s, 8192, HalfVectorParams::default());
+            let options = RenderOptions { spp: Some(128), seed: 40 + seed, ..Default::default() };
+            let out =
+                hslt::integrators::Integrator::render(&integrator, &s, &options, &AtomicBool::new(false));
+            let img = out.film.to_image();
+            assert!(img.data.iter().all(|v| v.is_finite() && *v >= 0.0));
+            assert_eq!(out.stats.invalid_samples, 0);
+            let n = meta_u64(&out, "hslt.mlt.hslt.proposed");
+            proposed += n;
+            applicable_count += n - meta_u64(&out, "hslt.mlt.hslt.not_applicable");
+            accepted += meta_u64(&out, "hslt.mlt.hslt.accepted");
+            invalid += meta_u64(&out, "hslt.mlt.hslt.rejected_invalid");
+            for (k, v) in &out.metadata {
+                if let Some(reason) = k.strip_prefix("hslt.mlt.hslt.failed.") {
+                    *failed.entry(reason.to_string()).or_default() += v.parse::<u64>().unwrap();
+                }
+            }
+            blocks(&img)
+        })
+        .collect();
+    let limits = DepthLimits { max_depth: s.integrator.max_depth, rr_depth: s.integrator.rr_depth };
+    let settings = IntegratorSettings::new(limits, s.integrator.hide_emitters);
+    let bdpt_runs: Vec<Vec<f64>> = (0..8)
+        .map(|seed| {
+            let options = RenderOptions { spp: Some(128), seed: 400 + seed, ..Default::default() };
+            let out =
+                make_with(IntegratorKind::Bdpt, &settings).render(&s, &options, &AtomicBool::new(false));
+            blocks(&out.film.to_image())
+        })
+        .collect();
+    let d = discrepancy(&mlt, &bdpt_runs);
+    let scaled: Vec<Vec<f64>> = mlt.iter().map(|r| r.iter().map(|v| v * 1.1).collect()).collect();
+    let d_scaled = discrepancy(&scaled, &bdpt_runs);
+    let flux = |runs: &[Vec<f64>]| mean_se(&runs.iter().map(|r| r.iter().sum::<f64>()).collect::<Vec<_>>());
+    let ((fm, fm_se), (fb, fb_se)) = (flux(&mlt), flux(&bdpt_runs));
+    eprintln!(
+        "{rel} {defines:?} HSLT-only vs BDPT: discrepancy {d:.3} (scaled by 1.1: {d_scaled:.3}); flux {fm:.4}±{fm_se:.4} \
+         vs {fb:.4}±{fb_se:.4}; {proposed} proposals, {applicable_count} applicable, acceptance among \
+         applicable {:.3}, failures {failed:?}; {:.1} s",
+        accepted as f64 / applicable_count as f64,
+        started.elapsed().as_secs_f64()
+    );
+    assert_eq!(invalid, 0, "no proposal may be invalid (NaN or negative)");
+    assert!(accepted > applicable_count / 10, "the mutation hardly ever moves: the test checks little");
+    assert!(d < 2.5, "HSLT-only chains differ from BDPT: discrepancy {d:.3}");
+    assert!(d_scaled > 2.5, "the comparison cannot see a 10% error ({d_scaled:.3})");
+    let flux_tol = 5.0 * (fm_se * fm_se + fb_se * fb_se).sqrt();
+    assert!((fm - fb).abs() <= flux_tol, "total flux {fm:.4} vs BDPT {fb:.4} (± {flux_tol:.4})");
+}
+
+#[test]
+fn hslt_only_chains_reproduce_bdpt_on_jewelry() {
+    check_against_bdpt("scenes/jewelry/scene.xml", &[("resx", "32"), ("resy", "24"), ("max_depth", "4")]);
+}
+
+#[test]
+fn hslt_only_chains_reproduce_bdpt_on_fig15() {
+    check_against_bdpt(
+        "scenes/fig15/scene.xml",
+        &[("resx", "32"), ("resy", "24"), ("max_depth", "4"), ("roughness", "0.1")],
+    );
+}
+
+/// For one seeding pass: HSLT-only chains and motionless chains from the same starts (drawn ∝ target
+/// among applicable paths), each recording the film block of every state it records, weighted as
+/// the chain records it. Returns per block (HSLT − motionless) / (chains · steps): the mass the
+/// mutation moved into the block. Both chains start from the target restricted to the paths HSLT
+/// applies to, which HSLT maps onto itself, so the expected shift is 0; sharing the starts removes
+/// their noise, which dominates any image of chains this short.
+fn block_shift(scene: &Scene, seed: u64, chains: usize, steps: usize, params: HalfVectorParams) -> Vec<f64> {
+    const GRID: (usize, usize) = (8, 6);
+    let bdpt = bdpt(scene);
+    let seeds = PathSeeds::run(scene, &bdpt, seed, 20_000, &AtomicBool::new(false));
+    let mut rng = Sampler::new(seed, 7, 7);
+    let (w, h) = (scene.film.width as f32, scene.film.height as f32);
+    let block = |state: &PathState| {
+        let bx = ((state.film.x / w * GRID.0 as f32) as usize).min(GRID.0 - 1);
+        let by = ((state.film.y / h * GRID.1 as f32) as usize).min(GRID.1 - 1);
+        by * GRID.0 + bx
+    };
+    let mut shift = vec![0.0; GRID.0 * GRID.1];
+    let mut started = 0;
+    while started < chains {
+        let Some(start) = seeds.draw(scene, &bdpt, seed, rng.next_f64()) else { continue };
+        if !applicable(&start.vertices) {
+            continue;
+        }
+        started += 1;
+        let start_target = target(&start);
+        // A motionless chain records its start with weight 1 / target at every step.
+        shift[block(&start)] -= steps as f64;
+        let mutation = Box::new(HalfVectorMutation::new(params));
+        let mut chain = Chain::new(
+            start,
+            vec![WeightedMutation { mutation, weight: 1.0 }],
+            TargetFunction::Luminance,
+            Sampler::new(seed, started as u64, 3),
+        );
+        let mut ctx = PathContext::new(scene, &bdpt);
+        let mut record = |state: &PathState, weight: f64| shift[block(state)] += weight * target(state);
+        for _ in 0..steps {
+            chain.step(&mut ctx, &mut record);
+        }
+        assert!(start_target > 0.0);
+    }
+    shift.iter().map(|v| v / (chains * steps) as f64).collect()
+}
+
+fn check_block_shift(rel: &str, defines: &[(&str, &str)], params: HalfVectorParams) {
+    let s = scene(rel, defines);
+    let started = std::time::Instant::now();
+    let runs: Vec<Vec<f64>> = (0..16).map(|r| block_shift(&s, 300 + r, 600, 40, params)).collect();
+    let mut t2 = Vec::new();
+    let mut moved = 0.0;
+    for j in 0..runs[0].len() {
+        let col: Vec<f64> = runs.iter().map(|r| r[j]).collect();
+        let (m, se) = mean_se(&col);
+        moved += col.iter().map(|v| v.abs()).sum::<f64>() / col.len() as f64;
+        if se > 0.0 {
+            t2.push((m / se).powi(2));
+        }
+    }
+    let mean_t2 = t2.iter().sum::<f64>() / t2.len() as f64;
+    eprintln!(
+        "{rel} {defines:?}: mean t² of the HSLT block shift {mean_t2:.3} over {} blocks (16 runs); mass moved \
+         between blocks {moved:.4}; {:.1} s",
+        t2.len(),
+        started.elapsed().as_secs_f64()
+    );
+    assert!(t2.len() >= 10 && moved > 1e-3, "the chains hardly move: the test checks nothing");
+    // Each t² of 16 runs follows F(1, 15): mean 1.15, variance 3.4, so the mean over n blocks has a
+    // standard deviation of about sqrt(3.4 / n) (blocks are nearly independent: mass moves a few
+    // pixels); the bound is five of them above the mean. Measured power: without |det J(X)| /
+    // |det J(Y)| in the ratio the statistic is 3.0 (jewelry) and 5.9 (fig15), without the kernel ratio
+    // 4.5 on jewelry; the correct ratio gives 1.3 and 0.9.
+    let bound = 1.15 + 5.0 * (3.4 / t2.len() as f64).sqrt();
+    assert!(mean_t2 < bound, "HSLT moves mass between film blocks: mean t² {mean_t2:.3} (bound {bound:.2})");
+}
+
+#[test]
+fn hslt_moves_no_mass_on_fig15() {
+    check_block_shift(
+        "scenes/fig15/scene.xml",
+        &[("resx", "64"), ("resy", "48"), ("max_depth", "4"), ("roughness", "0.1")],
+        HalfVectorParams::default(),
+    );
+}
+
+#[test]
+fn hslt_moves_no_mass_on_jewelry() {
+    check_block_shift(
+        "scenes/jewelry/scene.xml",
+        &[("resx", "64"), ("resy", "48"), ("max_depth", "4")],
+        HalfVectorParams { stratify: false, ..HalfVectorParams::default() },
+    );
+}
+
+/// Runs `chains` HSLT-only chains of `steps` mutations from seed draws and checks every recorded
+/// state and weight is finite; returns the summed statistics.
+fn run_chains(scene: &Scene, chains: usize, steps: usize, params: HalfVectorParams) -> MutationStats {
+    let bdpt = bdpt(scene);
+    let seeds = PathSeeds::run(scene, &bdpt, 9, 16_384, &AtomicBool::new(false));
+    assert!(seeds.candidates() > 0, "the scene carries no light");
+    let mut total = MutationStats::default();
+    let mut rng = Sampler::new(9, 0, 0);
+    for c in 0..chains {
+        let Some(start) = seeds.draw(scene, &bdpt, 9, rng.next_f64()) else { continue };
+        let mutation = Box::new(HalfVectorMutation::new(params));
+        let mut chain = Chain::new(
+            start,
+            vec![WeightedMutation { mutation, weight: 1.0 }],
+            TargetFunction::Luminance,
+            Sampler::new(9, c as u64, 1),
+        );
+        let mut ctx = PathContext::new(scene, &bdpt);
+        let mut record = |state: &PathState, weight: f64| {
+            assert!(weight.is_finite() && weight > 0.0, "recorded weight {weight}");
+            assert!(state.contribution.is_finite() && state.contribution.min_element() >= 0.0);
+            assert!(state.film.is_finite());
+        };
+        for _ in 0..steps {
+            chain.step(&mut ctx, &mut record);
+        }
+        total.add(&chain.stats()[0]);
+    }
+    total
+}
+
+fn describe(stats: &MutationStats) -> String {
+    let applied = stats.proposed - stats.not_applicable;
+    format!(
+        "{} proposed, {applied} applicable, acceptance among applicable {:.3}, rejected_zero {}, \
+         rejected_invalid {}, failures {:?}, mean Newton iterations {:.2}, mean step {:.4}",
+        stats.proposed,
+        stats.accepted as f64 / applied.max(1) as f64,
+        stats.rejected_zero,
+        stats.rejected_invalid,
+        stats.failed,
+        stats.sums.get("newton_iterations").unwrap_or(&0.0)
+            / stats.sums.get("converged_walks").unwrap_or(&1.0),
+        stats.sums.get("step_size").unwrap_or(&0.0) / applied.max(1) as f64
+    )
+}
+
+fn scene_from_xml(name: &str, xml: &str) -> Scene {
+    let path = std::env::temp_dir().join(format!("hslt-mutation-{name}-{}.xml", std::process::id()));
+    std::fs::write(&path, xml).unwrap();
+    let scene = load_scene(&path, &[]).unwrap();
+    std::fs::remove_file(&path).ok();
+    scene
+}
+
+#[test]
+fn near_specular_vertices_are_rejected_and_counted_never_nan() {
+    // α = 1e-3: steps of 1e-3 in h, Phong exponents of 2·10⁶; the walk's 1e-4 tolerance is then a
+    // tenth of a step, so failures and rejections are expected, invalid values never.
+    let s = scene(
+        "scenes/jewelry/scene.xml",
+        &[
+            ("resx", "32"),
+            ("resy", "24"),
+            ("max_depth", "4"),
+            ("ring_roughness", "0.001"),
+            ("gem_roughness", "0.001"),
+        ],
+    );
+    let stats = run_chains(&s, 256, 40, HalfVectorParams::default());
+    eprintln!("near-specular jewelry: {}", describe(&stats));
+    assert!(
+        stats.proposed > stats.not_applicable + 500,
+        "too few applicable proposals: {}",
+        describe(&stats)
+    );
+    assert_eq!(stats.rejected_invalid, 0);
+    assert_eq!(
+        stats.proposed,
+        stats.accepted
+            + stats.rejected
+            + stats.rejected_zero
+            + stats.rejected_invalid
+            + stats.not_applicable
+            + stats.failed_total()
+    );
+}
+
+#[test]
+fn grazing_paths_are_rejected_and_counted_never_nan() {
+    // Camera and light skim a rough metal plane from the same side, so wi ≈ wo and the half vector
+    // lies near the rim of the disk (|h⊥| → 1) where the Möbius map and the Jacobians are stiffest.
+    let s = scene_from_xml(
+        "grazing",
+        r#"<scene version="3.0.0">
+  <integrator type="bdpt"><integer name="max_depth" value="3" /></integrator>
+  <sensor type="perspective">
+    <float name="fov" value="20" />
+    <transform name="to_world"><lookat origin="0, -6, 0.25" target="0, 0, 0" up="0, 0, 1" /></transform>
+    <film type="hdrfilm"><integer name="width" value="32" /><integer name="height" value="24" /></film>
+  </sensor>
+  <shape type="rectangle">
+    <transform name="to_world"><scale value="10" /></transform>
+    <bsdf type="roughconductor"><string name="distribution" value="ggx" /><float name="alpha" value="0.8" /></bsdf>
+  </shape>
+  <shape type="rectangle">
+    <transform name="to_world"><scale value="0.3" /><rotate x="1" angle="-80" /><translate x="0.4" y="-6.5" z="0.35" /></transform>
+    <emitter type="area"><rgb name="radiance" value="50, 50, 50" /></emitter>
+  </shape>
+</scene>"#,
+    );
+    let bdpt = bdpt(&s);
+    let seeds = PathSeeds::run(&s, &bdpt, 9, 4096, &AtomicBool::new(false));
+    let mut rng = Sampler::new(1, 0, 0);
+    let radii: Vec<f64> = (0..200)
+        .filter_map(|_| seeds.draw(&s, &bdpt, 9, rng.next_f64()))
+        .filter(|x| x.vertices.len() == 3)
+        .map(|x| {
+            let c = path_constraints(&path_geometry(&x.vertices), &path_etas(&s, &x.vertices)).unwrap();
+            c.h[0].length()
+        })
+        .collect();
+    let (mean_radius, _) = mean_se(&radii);
+    assert!(mean_radius > 0.9, "the paths are not grazing: mean |h| {mean_radius}");
+    for stratify in [true, false] {
+        let params = HalfVectorParams { stratify, ..HalfVectorParams::default() };
+        let stats = run_chains(&s, 256, 40, params);
+        eprintln!("grazing plane (mean |h| {mean_radius:.3}, stratified {stratify}): {}", describe(&stats));
+        assert!(
+            stats.proposed > stats.not_applicable + 500,
+            "too few applicable proposals: {}",
+            describe(&stats)
+        );
+        assert_eq!(stats.rejected_invalid, 0);
+    }
+}
+
+#[test]
+fn paths_it_does_not_apply_to_are_left_alone() {
+    // fig15 seeds include all-diffuse paths (ground and sphere) and glossy ones, the Cornell box paths
+    // where the camera sees the light, and the caustic scene paths through a smooth glass ball (Dirac
+    // vertices).
+    let mut checked = [0usize; 3];
+    for (rel, defines) in [
+        ("scenes/fig15/scene.xml", vec![("resx", "32"), ("resy", "24"), ("max_depth", "4")]),
+        ("scenes/caustic/scene.xml", vec![("resx", "32"), ("resy", "32")]),
+        ("scenes/cornell-box/scene.xml", vec![("resx", "32"), ("resy", "32")]),
+    ] {
+        let s = scene(rel, &defines);
+        let bdpt = bdpt(&s);
+        let seeds = PathSeeds::run(&s, &bdpt, 3, 16_384, &AtomicBool::new(false));
+        let mut mutation = HalfVectorMutation::new(HalfVectorParams::default());
+        let mut ctx = PathContext::new(&s, &bdpt);
+        let mut rng = Sampler::new(3, 0, 0);
+        for _ in 0..3000 {
+            let Some(x) = seeds.draw(&s, &bdpt, 3, rng.next_f64()) else { continue };
+            let inner = &x.vertices[1..x.vertices.len() - 1];
+            let kind = if inner.is_empty() {
+                0
+            } else if inner.iter().any(|v| v.delta) {
+                1
+            } else if inner.iter().all(|v| matches!(v.class, hslt::path::ScatterClass::Diffuse)) {
+                2
+            } else {
+                continue;
+            };
+            let mut stats = MutationStats::default();
+            let rays = ctx.counters.rays;
+            let result = mutation.propose(&x, &mut ctx, &mut rng, &mut stats);
+            assert!(matches!(result, Err(Failure::NotApplicable)), "{rel}: {:?}", result.map(|p| p.t_ratio));
+            assert_eq!(ctx.counters.rays, rays, "a path it does not apply to costs no rays");
+            assert!(stats.sums.is_empty());
+            checked[kind] += 1;
+        }
+    }
+    eprintln!(
+        "not applicable: {} two-vertex, {} Dirac, {} all-diffuse paths",
+        checked[0], checked[1], checked[2]
+    );
+    assert!(checked.iter().all(|&n| n > 10), "cases not all exercised: {checked:?}");
+}
+
+/// The product-of-Jacobians form of f_H's geometric part (digest 2.4): Π G(x_i, x_{i+1}) / |det J| =
+/// G(x_0, x_1) |det T_1| Π_i |n_g·ω_o| |dω_o/dω_H| / |n·H|, with T_1 = ∂x_1/∂x_k, the per-vertex
+/// factor the projected solid angle per unit projected half vector (Walter et al. 2007 for
+/// refraction), both in f64 from the same local geometry.
+fn product_of_jacobians(scene: &Scene, path: &[hslt::path::Vertex]) -> Option<(f64, f64)> {
+    use hslt::manifold::half_vector_constraint;
+    let geometry = path_geometry(path);
+    let eta = path_etas(scene, path);
+    let constraints = path_constraints(&geometry, &eta).ok()?;
+    let lu = constraints.jacobian.factor().ok()?;
+    let k = path.len() - 1;
+    let g = |a: usize, b: usize| {
+        let d = geometry[b].p - geometry[a].p;
+        let w = d.normalize();
+        (geometry[a].ng.dot(w) * geometry[b].ng.dot(w)).abs() / d.length_squared()
+    };
+    let ln_lhs = (0..k).map(|i| g(i, i + 1).ln()).sum::<f64>() - lu.log_det().ln_abs;
+    let mut ln_rhs = g(0, 1).ln() + lu.transfer_from_end().determinant().abs().ln();
+    for i in 1..k {
+        let vc = half_vector_constraint(&geometry[i - 1], &geometry[i], &geometry[i + 1], eta[i]).ok()?;
+        if vc.index_matched {
+            return None;
+        }
+        let cur = &geometry[i];
+        let wi = (geometry[i - 1].p - cur.p).normalize();
+        let wo = (geometry[i + 1].p - cur.p).normalize();
+        let h = (wi + wo * vc.eta_rel).normalize();
+        let jacobian_w =
+            (wi.dot(h) + vc.eta_rel * wo.dot(h)).powi(2) / (vc.eta_rel.powi(2) * wo.dot(h).abs());
+        ln_rhs += (cur.ng.dot(wo).abs() * jacobian_w / cur.n.dot(h).abs()).ln();
+    }
+    Some((ln_lhs, ln_rhs))
+}
+
+#[test]
+fn half_vector_measure_matches_the_product_of_jacobians() {
+    // Random glossy paths (reflections on the rings, refractions through the gems and the cube) of
+    // two to four inner vertices; both sides are computed in f64 from the same geometry, so they
+    // agree to rounding unless J is near-singular, which the 1e-6 relative bound allows for.
+    let mut checked = std::collections::BTreeMap::<usize, usize>::new();
+    for (rel, defines) in [
+        ("scenes/jewelry/scene.xml", vec![("resx", "32"), ("resy", "24"), ("max_depth", "5")]),
+        (
+            "scenes/fig15/scene.xml",
+            vec![("resx", "32"), ("resy", "24"), ("max_depth", "5"), ("roughness", "0.1")],
+        ),
+    ] {
+        let s = scene(rel, &defines);
+        let bdpt = bdpt(&s);
+        let seeds = PathSeeds::run(&s, &bdpt, 21, 16_384, &AtomicBool::new(false));
+        let mut rng = Sampler::new(21, 0, 0);
+        for _ in 0..4000 {
+            let Some(x) = seeds.draw(&s, &bdpt, 21, rng.next_f64()) else { continue };
+            if !applicable(&x.vertices) {
+                continue;
+            }
+            let Some((lhs, rhs)) = product_of_jacobians(&s, &x.vertices) else { continue };
+            assert!(
+                (lhs - rhs).abs() < 1e-6 * (1.0 + lhs.abs()),
+                "{rel}: ln(Π G / |det J|) = {lhs}, product of Jacobians {rhs}, {} vertices",
+                x.vertices.len()
+            );
+            *checked.entry(x.vertices.len() - 2).or_default() += 1;
+        }
+    }
+    eprintln!("f_H identity checked on paths with (inner vertices: count) {checked:?}");
+    assert!(checked.keys().any(|&n| n >= 2) && checked.values().sum::<usize>() > 500, "{checked:?}");
+}
+
+/// Measurement helper, not a check: acceptance and failures against the step scale, with and without
+/// stratification. `cargo test --test hslt_mutation -- --ignored acceptance_table --nocapture`.
+#[test]
+#[ignore]
+fn acceptance_table() {
+    for (rel, defines) in [
+        ("scenes/jewelry/scene.xml", vec![("resx", "64"), ("resy", "48"), ("max_depth", "4")]),
+        ("scenes/fig15/scene.xml", vec![("resx", "64"), ("resy", "48"), ("max_depth", "4")]),
+        (
+            "scenes/fig15/scene.xml",
+            vec![("resx", "64"), ("resy", "48"), ("max_depth", "4"), ("roughness", "0.1")],
+        ),
+    ] {
+        let s = scene(rel, &defines);
+        for stratify in [true, false] {
+            for step_scale in [0.5, 1.0, 2.0, 4.0] {
+                let params = HalfVectorParams { step_scale, stratify, ..HalfVectorParams::default() };
+                let out = sample_proposals(&s, 40_000, 8_000, params, 77);
+                let n = out.balance_valid.len();
+                let sums = &out.stats.sums;
+                println!(
+                    "{rel} {:?} stratify {stratify} scale {step_scale}: acceptance {:.3}, valid {:.3}, \
+                     Newton {:.2}, step {:.4}, rays/proposal {:.0}, failures {:?}",
+                    &defines[3..],
+                    out.accepted_sum / n as f64,
+                    out.valid as f64 / n as f64,
+                    sums.get("newton_iterations").unwrap_or(&0.0)
+                        / sums.get("converged_walks").unwrap_or(&1.0),
+                    sums.get("step_size").unwrap_or(&0.0) / n as f64,
+                    out.rays as f64 / n as f64,
+                    out.stats.failed
+                );
+            }
+        }
+    }
+}
