@@ -168,9 +168,13 @@ pub fn corrector_pass(
         for (c, candidate) in out.iter().enumerate() {
             let Ok(built) = candidate else { continue };
             let from = built[i - 1];
-            let aim = predicted(i, fractions[c]) - from.p;
-            let Some(dir) = aim.try_normalize() else { continue };
-            let origin = if from.is_surface() { offset_origin(from.p, from.ng, dir) } else { from.p };
+            let target = predicted(i, fractions[c]);
+            let Some(side) = (target - from.p).try_normalize() else { continue };
+            let origin = if from.is_surface() { offset_origin(from.p, from.ng, side) } else { from.p };
+            // Aim from the offset origin itself: a ray parallel to (target − p) misses the target by
+            // the offset (~1e-4 of the scene scale), which re-projection would add to every iterate
+            // and which stalled the walk at a half-vector error of that order.
+            let Some(dir) = (target - origin).try_normalize() else { continue };
             rays.push(Ray::new(origin, dir));
             owners.push(c);
         }

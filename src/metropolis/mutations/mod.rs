@@ -3,6 +3,10 @@
 //! densities T(y→x)/T(x→y) in the measure of `PathState::contribution` (product area measure with the
 //! Dirac deltas of specular vertices cancelled, see `Vertex::dirac_lobe`).
 
+mod manifold;
+
+pub use manifold::ManifoldPerturbation;
+
 use super::chain::Mutation;
 use super::path_state::{PathContext, PathState};
 use crate::scene::Scene;
@@ -83,7 +87,7 @@ impl MutationKind {
 
     /// Whether this build implements the mutation.
     pub fn available(self) -> bool {
-        false
+        matches!(self, MutationKind::Manifold)
     }
 }
 
@@ -92,11 +96,14 @@ impl MutationKind {
 pub struct MutationSettings {
     /// MEMLT's perturbation size λ (Jakob & Marschner 2012; the HSLT paper's Figure 16 uses 50).
     pub lambda: f64,
+    /// MEMLT: glossy vertices with roughness α below this are held at their half vector like specular
+    /// ones (Jakob & Marschner's treatment of near-specular surfaces).
+    pub specular_threshold: f32,
 }
 
 impl Default for MutationSettings {
     fn default() -> MutationSettings {
-        MutationSettings { lambda: 50.0 }
+        MutationSettings { lambda: 50.0, specular_threshold: 0.1 }
     }
 }
 
@@ -104,15 +111,17 @@ impl Default for MutationSettings {
 /// refuses such mixtures with a message before rendering).
 pub fn make<'a>(
     kind: MutationKind,
-    _settings: &MutationSettings,
+    settings: &MutationSettings,
     _scene: &Scene,
 ) -> Option<Box<dyn Mutation<PathState, PathContext<'a>>>> {
     match kind {
+        MutationKind::Manifold => {
+            Some(Box::new(ManifoldPerturbation::new(settings.lambda, settings.specular_threshold)))
+        }
         MutationKind::Bidirectional
         | MutationKind::Lens
         | MutationKind::Caustic
         | MutationKind::MultiChain
-        | MutationKind::Manifold
         | MutationKind::HalfVector => None,
     }
 }
