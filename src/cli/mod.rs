@@ -142,6 +142,10 @@ pub struct RenderArgs {
     /// MEMLT: manifold perturbation size λ (larger: smaller steps).
     #[arg(long, value_name = "L", default_value_t = 50.0)]
     pub lambda: f64,
+    /// MEMLT: glossy vertices with a roughness α below this are held at their half vector like
+    /// specular ones by the manifold perturbation (0 treats every glossy vertex as diffuse).
+    #[arg(long, value_name = "ALPHA", default_value_t = 0.1)]
+    pub specular_threshold: f32,
     /// PSSMLT: probability of a large step (an independent new sample) per mutation.
     #[arg(long, value_name = "P", default_value_t = 0.3)]
     pub p_large: f64,
@@ -303,6 +307,10 @@ fn run_render(args: RenderArgs) -> anyhow::Result<i32> {
         bail!("--lambda must be a positive number");
     }
     settings.mutation.lambda = args.lambda;
+    if !(args.specular_threshold.is_finite() && args.specular_threshold >= 0.0) {
+        bail!("--specular-threshold must be a roughness ≥ 0");
+    }
+    settings.mutation.specular_threshold = args.specular_threshold;
     let integrator = integrators::make_with(kind, &settings);
     let options = RenderOptions {
         spp: args.spp.or(if args.time.is_some() { None } else { Some(scene.spp) }),
@@ -395,14 +403,37 @@ fn print_metropolis_summary(meta: &Metadata) {
         eprintln!("warning: {status}");
     }
     if let (Some(m), Some(a)) = (get("hslt.mlt.mutations"), get("hslt.mlt.acceptance")) {
-        let mut line = format!("{m} mutations, acceptance {a}");
+        eprintln!("{m} mutations, acceptance {a}");
         for (k, v) in meta {
-            if let Some(name) = k.strip_prefix("hslt.mlt.").and_then(|r| r.strip_suffix(".acceptance")) {
-                let zero = get(&format!("hslt.mlt.{name}.rejected_zero")).unwrap_or("0");
-                line += &format!("; {name} {v} ({zero} zero-contribution rejections)");
+            let Some(name) = k.strip_prefix("hslt.mlt.").and_then(|r| r.strip_suffix(".acceptance")) else {
+                continue;
+            };
+            let field = |what: &str| get(&format!("hslt.mlt.{name}.{what}")).unwrap_or("0").to_string();
+            let mut line = format!(
+                "  {name}: {} proposed, acceptance {v}, {} zero-contribution, {} not applicable",
+                field("proposed"),
+                field("rejected_zero"),
+                field("not_applicable")
+            );
+            let prefix = format!("hslt.mlt.{name}.");
+            let detail = |part: &str| -> Vec<String> {
+                meta.iter()
+                    .filter_map(|(key, value)| {
+                        let rest = key.strip_prefix(&prefix)?.strip_prefix(part)?;
+                        Some(format!("{rest} {value}"))
+                    })
+                    .collect()
+            };
+            let failed = detail("failed.");
+            if !failed.is_empty() {
+                line += &format!("; failed: {}", failed.join(", "));
             }
+            let means = detail("mean.");
+            if !means.is_empty() {
+                line += &format!("; mean {}", means.join(", "));
+            }
+            eprintln!("{line}");
         }
-        eprintln!("{line}");
     }
 }
 

@@ -14,7 +14,7 @@ pub use chain::{
     Chain, ChainState, Failure, Mutation, MutationStats, Proposal, TargetFunction, WeightedMutation,
 };
 pub use mlt::{MltSettings, PathMlt, PathSeeds};
-pub use mutations::{MutationKind, MutationSettings};
+pub use mutations::{ManifoldPerturbation, MutationKind, MutationSettings};
 pub use path_state::{PathContext, PathState};
 pub use pss::PssSampler;
 pub use pssmlt::{PssSample, Pssmlt, PssmltSettings};

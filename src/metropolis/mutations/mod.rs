@@ -4,6 +4,9 @@
 //! Dirac deltas of specular vertices cancelled, see `Vertex::dirac_lobe`).
 
 pub mod halfvector;
+mod manifold;
+
+pub use manifold::ManifoldPerturbation;
 
 use super::chain::Mutation;
 use super::path_state::{PathContext, PathState};
@@ -85,7 +88,7 @@ impl MutationKind {
 
     /// Whether this build implements the mutation.
     pub fn available(self) -> bool {
-        matches!(self, MutationKind::HalfVector)
+        matches!(self, MutationKind::HalfVector | MutationKind::Manifold)
     }
 }
 
@@ -94,13 +97,20 @@ impl MutationKind {
 pub struct MutationSettings {
     /// MEMLT's perturbation size λ (Jakob & Marschner 2012; the HSLT paper's Figure 16 uses 50).
     pub lambda: f64,
+    /// MEMLT: glossy vertices with roughness α below this are held at their half vector like specular
+    /// ones (Jakob & Marschner's treatment of near-specular surfaces).
+    pub specular_threshold: f32,
     /// HSLT's half-vector mutation: step scale, stratification, image step and walk constants.
     pub halfvector: halfvector::HalfVectorParams,
 }
 
 impl Default for MutationSettings {
     fn default() -> MutationSettings {
-        MutationSettings { lambda: 50.0, halfvector: halfvector::HalfVectorParams::default() }
+        MutationSettings {
+            lambda: 50.0,
+            specular_threshold: 0.1,
+            halfvector: halfvector::HalfVectorParams::default(),
+        }
     }
 }
 
@@ -113,11 +123,13 @@ pub fn make<'a>(
 ) -> Option<Box<dyn Mutation<PathState, PathContext<'a>>>> {
     match kind {
         MutationKind::HalfVector => Some(Box::new(halfvector::HalfVectorMutation::new(settings.halfvector))),
+        MutationKind::Manifold => {
+            Some(Box::new(ManifoldPerturbation::new(settings.lambda, settings.specular_threshold)))
+        }
         MutationKind::Bidirectional
         | MutationKind::Lens
         | MutationKind::Caustic
-        | MutationKind::MultiChain
-        | MutationKind::Manifold => None,
+        | MutationKind::MultiChain => None,
     }
 }
 
