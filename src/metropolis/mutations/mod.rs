@@ -3,6 +3,8 @@
 //! densities T(y→x)/T(x→y) in the measure of `PathState::contribution` (product area measure with the
 //! Dirac deltas of specular vertices cancelled, see `Vertex::dirac_lobe`).
 
+pub mod bidir;
+
 use super::chain::Mutation;
 use super::path_state::{PathContext, PathState};
 use crate::scene::Scene;
@@ -83,7 +85,7 @@ impl MutationKind {
 
     /// Whether this build implements the mutation.
     pub fn available(self) -> bool {
-        false
+        matches!(self, MutationKind::Bidirectional)
     }
 }
 
@@ -108,8 +110,8 @@ pub fn make<'a>(
     _scene: &Scene,
 ) -> Option<Box<dyn Mutation<PathState, PathContext<'a>>>> {
     match kind {
-        MutationKind::Bidirectional
-        | MutationKind::Lens
+        MutationKind::Bidirectional => Some(Box::new(bidir::BidirectionalMutation)),
+        MutationKind::Lens
         | MutationKind::Caustic
         | MutationKind::MultiChain
         | MutationKind::Manifold
