@@ -91,7 +91,10 @@ pub fn transition_density(
     if suffix_empty && deleted == 1 {
         return 0.0;
     }
-    if to[a].delta || (!suffix_empty && to[c].delta) || (suffix_empty && to[n - 1].is_delta_light(scene)) {
+    if to[a].delta
+        || (!suffix_empty && dirac_scatter(scene, &to[c]))
+        || (suffix_empty && to[n - 1].is_delta_light(scene))
+    {
         return 0.0;
     }
     let s_lo = usize::from(suffix_empty);
@@ -118,6 +121,13 @@ pub fn transition_density(
         sum += p_split * eye * light;
     }
     p_length * p_deleted * p_position * sum
+}
+
+/// Whether a kept vertex scattered through a Dirac lobe. A point or spot light endpoint is flagged
+/// `delta` for its Dirac position, not for a lobe: it stays a valid kept end, from which emission
+/// directions are sampled with a proper density.
+fn dirac_scatter(scene: &Scene, v: &Vertex) -> bool {
+    v.delta && !v.is_delta_light(scene)
 }
 
 /// Whether two vertices are the same kept vertex (copied, so bit-identical).
@@ -222,7 +232,7 @@ impl<'a> Mutation<PathState, PathContext<'a>> for BidirectionalMutation {
         if suffix_empty && deleted == 1 {
             return Err(Failure::Failed("emitter_would_be_inner"));
         }
-        if x[a].delta || (!suffix_empty && x[b].delta) {
+        if x[a].delta || (!suffix_empty && dirac_scatter(scene, &x[b])) {
             return Err(Failure::Failed("dirac_kept_vertex"));
         }
         if suffix_empty && x[k].is_delta_light(scene) {
@@ -273,8 +283,11 @@ impl<'a> Mutation<PathState, PathContext<'a>> for BidirectionalMutation {
                     let dir = emitter
                         .sample_emission_direction(scene, rng.next_2d())
                         .ok_or(Failure::Failed("no_emission"))?;
-                    let origin =
-                        if emitter.is_surface() { offset_origin(emitter.p, emitter.ng, dir) } else { emitter.p };
+                    let origin = if emitter.is_surface() {
+                        offset_origin(emitter.p, emitter.ng, dir)
+                    } else {
+                        emitter.p
+                    };
                     Ray::new(origin, dir)
                 } else {
                     kept_vertex_ray(scene, &x[b], &x[b + 1], TransportMode::Importance, rng)?
