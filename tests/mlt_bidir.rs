@@ -289,9 +289,10 @@ fn options(spp: u32, seed: u64) -> RenderOptions {
     RenderOptions { spp: Some(spp), seed, ..Default::default() }
 }
 
-fn bidir_mlt(scene: &Scene) -> PathMlt {
+fn bidir_mlt(scene: &Scene, chains: usize, seed_paths: Option<usize>) -> PathMlt {
     let mut settings = MltSettings::for_technique(vec![(MutationKind::Bidirectional, 1.0)]);
-    settings.chains = 32;
+    settings.chains = chains;
+    settings.seed_paths = seed_paths;
     PathMlt::new("mlt", bdpt(scene), settings)
 }
 
@@ -303,11 +304,56 @@ fn mutation_stat(out: &RenderOutput, key: &str) -> f64 {
         .unwrap_or_else(|| panic!("no metadata {key}: {:?}", out.metadata))
 }
 
+/// Mean over blocks of z_j² = (ā_j − b̄_j)² / (s²_a,j / K_a + s²_b,j / K_b), the bars means over
+/// independent runs and s² their spread. Each block counts alike, so one block with rare bright paths
+/// (a firefly region, whose spread is large in both sets) cannot mask a distortion of the others.
+/// Without a bias each z_j is about Student-t distributed with ≥ 7 degrees of freedom, so the mean is
+/// about 1.2–1.4, with a spread of about 0.3 over 64 blocks.
+fn mean_z2(a: &[Vec<f64>], b: &[Vec<f64>]) -> f64 {
+    let stats = |runs: &[Vec<f64>], j: usize| {
+        let col: Vec<f64> = runs.iter().map(|r| r[j]).collect();
+        let (m, se) = mean_se(&col);
+        (m, se * se)
+    };
+    let (mut sum, mut count) = (0.0, 0);
+    for j in 0..a[0].len() {
+        let ((ma, va), (mb, vb)) = (stats(a, j), stats(b, j));
+        if va + vb > 0.0 {
+            sum += (ma - mb).powi(2) / (va + vb);
+            count += 1;
+        }
+    }
+    sum / count.max(1) as f64
+}
+
+/// Block means divided by their sum: where the image's energy lies, whatever its total.
+fn shape(runs: &[Vec<f64>]) -> Vec<Vec<f64>> {
+    runs.iter()
+        .map(|r| {
+            let total: f64 = r.iter().sum();
+            r.iter().map(|v| v / total).collect()
+        })
+        .collect()
+}
+
 /// Independent bidirectional-only MLT runs against independent BDPT runs of the same scene.
-fn compare_with_bdpt(rel: &str, mlt_runs: u64, mlt_spp: u32, bdpt_spp: u32) {
+///
+/// The image's total is b, fixed by the seeding pass (BDPT samples) before any mutation runs; how the
+/// mutation distributes it is its whole effect. So the distribution is compared on each run's blocks
+/// divided by their sum, where b cancels (`mean_z2` < 2.5, about four spreads above its expectation),
+/// and the total separately. Moving 10% of the energy between the image's halves must fail the same
+/// statistic, which shows the runs can see a distortion of that size.
+fn compare_with_bdpt(
+    rel: &str,
+    chains: usize,
+    seed_paths: usize,
+    mlt_runs: u64,
+    mlt_spp: u32,
+    bdpt_spp: u32,
+) {
     let scene = small_scene(rel);
     let start = Instant::now();
-    let mlt = bidir_mlt(&scene);
+    let mlt = bidir_mlt(&scene, chains, Some(seed_paths));
     let mut acceptance = Vec::new();
     let mlt_blocks: Vec<Vec<f64>> = (0..mlt_runs)
         .map(|seed| {
@@ -321,28 +367,33 @@ fn compare_with_bdpt(rel: &str, mlt_runs: u64, mlt_spp: u32, bdpt_spp: u32) {
         .collect();
     let mlt_seconds = start.elapsed().as_secs_f64();
     let reference = TiledRenderer(Box::new(bdpt(&scene)));
-    let bdpt_blocks: Vec<Vec<f64>> = (0..4)
+    let bdpt_blocks: Vec<Vec<f64>> = (0..8)
         .map(|seed| {
             let out = reference.render(&scene, &options(bdpt_spp, 700 + seed), &AtomicBool::new(false));
             blocks(&out.film.to_image())
         })
         .collect();
-    let d = discrepancy(&mlt_blocks, &bdpt_blocks);
-    let scaled: Vec<Vec<f64>> = mlt_blocks.iter().map(|r| r.iter().map(|v| v * 1.1).collect()).collect();
-    let d_scaled = discrepancy(&scaled, &bdpt_blocks);
+    let (mlt_shape, bdpt_shape) = (shape(&mlt_blocks), shape(&bdpt_blocks));
+    let d = mean_z2(&mlt_shape, &bdpt_shape);
+    let half = mlt_shape[0].len() / 2;
+    let distorted: Vec<Vec<f64>> = mlt_shape
+        .iter()
+        .map(|r| r.iter().enumerate().map(|(j, v)| if j < half { v * 1.1 } else { *v }).collect())
+        .collect();
+    let d_distorted = mean_z2(&shape(&distorted), &bdpt_shape);
     let flux = |runs: &[Vec<f64>]| mean_se(&runs.iter().map(|r| r.iter().sum::<f64>()).collect::<Vec<_>>());
     let ((fm, fm_se), (fb, fb_se)) = (flux(&mlt_blocks), flux(&bdpt_blocks));
     let (acc, _) = mean_se(&acceptance);
     eprintln!(
         "{rel}: bidir MLT {mlt_runs} runs × {mlt_spp} mutations/pixel in {mlt_seconds:.1} s, acceptance \
-         {acc:.3}; discrepancy {d:.3} (scaled by 1.1: {d_scaled:.3}); flux {fm:.3} ± {fm_se:.3} vs BDPT \
-         {fb:.3} ± {fb_se:.3}"
+         {acc:.3}; shape mean z² {d:.3} (top half ×1.1: {d_distorted:.3}); flux {fm:.3} ± {fm_se:.3} \
+         vs BDPT {fb:.3} ± {fb_se:.3}; variance-weighted block discrepancy {:.3}, of the shapes {:.3}",
+        discrepancy(&mlt_blocks, &bdpt_blocks),
+        discrepancy(&mlt_shape, &bdpt_shape)
     );
-    // Per block, the squared difference of run means against its variance from the run spread: summed
-    // over 64 blocks the ratio has mean 1 and a spread of about 0.2–0.4 with few runs, so 2.0 is well
-    // outside chance. The 1.1-scaled image must fail it, which shows the runs can see a 10% bias.
-    assert!(d < 2.0, "{rel}: bidirectional MLT differs from BDPT: discrepancy {d:.3}");
-    assert!(d_scaled > 2.0, "{rel}: the comparison cannot see a 10% error ({d_scaled:.3})");
+    assert!(d < 2.5, "{rel}: bidirectional MLT differs from BDPT: mean z² {d:.3}");
+    assert!(d_distorted > 2.5, "{rel}: the comparison cannot see a 10% distortion ({d_distorted:.3})");
+    // The total is b against BDPT's: both are BDPT estimates, b from the seed pass.
     let flux_tol = 5.0 * (fm_se * fm_se + fb_se * fb_se).sqrt();
     assert!((fm - fb).abs() <= flux_tol, "{rel}: flux {fm:.4} vs BDPT {fb:.4} (± {flux_tol:.4})");
     assert!(acc > 0.01 && acc < 1.0, "{rel}: acceptance {acc}");
@@ -350,12 +401,12 @@ fn compare_with_bdpt(rel: &str, mlt_runs: u64, mlt_spp: u32, bdpt_spp: u32) {
 
 #[test]
 fn bidirectional_chains_reproduce_bdpt_on_the_cornell_box() {
-    compare_with_bdpt("scenes/cornell-box/scene.xml", 6, 64, 64);
+    compare_with_bdpt("scenes/cornell-box/scene.xml", 64, 16_384, 12, 128, 64);
 }
 
 #[test]
 fn bidirectional_chains_reproduce_bdpt_on_the_caustic_scene() {
-    compare_with_bdpt("scenes/caustic/scene.xml", 6, 64, 64);
+    compare_with_bdpt("scenes/caustic/scene.xml", 256, 1 << 18, 12, 128, 256);
 }
 
 #[test]
@@ -364,7 +415,7 @@ fn bidirectional_chains_under_a_constant_sky_converge_to_rho_l() {
     // fixed direction. Every pixel converges to ρ L = 0.5 · 2; the run-to-run spread of the image mean
     // bounds the error (5 standard errors).
     let scene = small_scene("tests/data/analytic/plane-under-sky.xml");
-    let mlt = bidir_mlt(&scene);
+    let mlt = bidir_mlt(&scene, 64, None);
     let means: Vec<f64> = (0..5)
         .map(|seed| {
             let out = mlt.render(&scene, &options(32, 40 + seed), &AtomicBool::new(false));
@@ -422,7 +473,7 @@ fn degenerate_paths_give_counted_failures_never_nan() {
 
     // A scene where the only emitter faces away: no seed path, so no chain, a black image and a status.
     let dark = self::scene("tests/data/metropolis/light-faces-away.xml", &[]);
-    let out = bidir_mlt(&dark).render(&dark, &options(4, 1), &AtomicBool::new(false));
+    let out = bidir_mlt(&dark, 4, None).render(&dark, &options(4, 1), &AtomicBool::new(false));
     assert!(out.film.to_image().data.iter().all(|&v| v == 0.0));
     assert_eq!(out.stats.invalid_samples, 0);
     assert!(out.metadata.iter().any(|(k, _)| k == "hslt.mlt.status"));
