@@ -29,22 +29,27 @@ fn edge_range(bdpt: &Bdpt) -> (usize, usize) {
     (k_min, k_max)
 }
 
+fn two_tailed_weight(centre: usize, value: usize) -> f64 {
+    0.5f64.powi(value.abs_diff(centre).min(1000) as i32)
+}
+
 /// P(value) for the two-tailed geometric distribution ∝ 2^−|value − centre| on [lo, hi].
 fn two_tailed_pmf(centre: usize, lo: usize, hi: usize, value: usize) -> f64 {
     if lo > hi || value < lo || value > hi {
         return 0.0;
     }
-    let weight = |v: usize| 0.5f64.powi(v.abs_diff(centre) as i32);
-    weight(value) / (lo..=hi).map(weight).sum::<f64>()
+    let total: f64 = (lo..=hi).map(|v| two_tailed_weight(centre, v)).sum();
+    two_tailed_weight(centre, value) / total
 }
 
 fn sample_two_tailed(centre: usize, lo: usize, hi: usize, u: f64) -> Option<usize> {
     if lo > hi {
         return None;
     }
-    let mut rest = u;
+    let total: f64 = (lo..=hi).map(|v| two_tailed_weight(centre, v)).sum();
+    let mut rest = u * total;
     for v in lo..=hi {
-        rest -= two_tailed_pmf(centre, lo, hi, v);
+        rest -= two_tailed_weight(centre, v);
         if rest < 0.0 {
             return Some(v);
         }
@@ -322,5 +327,41 @@ impl<'a> Mutation<PathState, PathContext<'a>> for BidirectionalMutation {
         stats.add_sum("deleted_vertices", (deleted - 1) as f64);
         stats.add_sum("added_vertices", (added - 1) as f64);
         Ok(Proposal { state, t_ratio })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn two_tailed_lengths_are_normalised_and_sampled_by_their_pmf() {
+        for (centre, lo, hi) in [(3, 1, 8), (1, 2, 64), (70, 1, 64), (2, 2, 2)] {
+            let total: f64 = (lo..=hi).map(|v| two_tailed_pmf(centre, lo, hi, v)).sum();
+            assert!((total - 1.0).abs() < 1e-12, "({centre}, {lo}, {hi}): sums to {total}");
+            assert_eq!(two_tailed_pmf(centre, lo, hi, hi + 1), 0.0);
+            // Frequencies of 20 000 draws within 5 binomial standard deviations of the pmf.
+            let n = 20_000;
+            let mut rng = Sampler::new(1, centre as u64, lo as u64);
+            let mut counts = vec![0usize; hi + 1];
+            for _ in 0..n {
+                counts[sample_two_tailed(centre, lo, hi, rng.next_f64()).unwrap()] += 1;
+            }
+            for v in lo..=hi {
+                let p = two_tailed_pmf(centre, lo, hi, v);
+                let sd = (n as f64 * p * (1.0 - p)).sqrt();
+                assert!((counts[v] as f64 - n as f64 * p).abs() <= 5.0 * sd + 1.0, "value {v}");
+            }
+        }
+        assert_eq!(sample_two_tailed(2, 3, 1, 0.5), None);
+    }
+
+    #[test]
+    fn deletions_never_reconnect_the_same_vertices_and_reach_the_new_length() {
+        assert_eq!(min_deleted(4, 4), 2);
+        assert_eq!(min_deleted(4, 5), 1);
+        assert_eq!(min_deleted(4, 2), 3);
+        // k' = 1 from k = 4: four of the five edges (counting the light supernode's) must go.
+        assert_eq!(min_deleted(4, 1), 4);
     }
 }
