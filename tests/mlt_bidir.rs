@@ -413,7 +413,7 @@ fn bidirectional_chains_reproduce_bdpt_on_the_cornell_box() {
 
 #[test]
 fn bidirectional_chains_reproduce_bdpt_on_the_caustic_scene() {
-    compare_with_bdpt("scenes/caustic/scene.xml", 256, 1 << 18, 12, 128, 256);
+    compare_with_bdpt("scenes/caustic/scene.xml", 256, 1 << 18, 12, 320, 256);
 }
 
 #[test]
