@@ -114,27 +114,14 @@ impl Bdpt {
         if light_max == 0 {
             return sub;
         }
-        let Some((li, pmf, _)) = scene.light_selector.sample(u_light) else { return sub };
-        let light = &scene.lights[li];
-        let Some(es) = light.sample_le(u_pos, u_dir, scene.bounds.center(), scene.radius()) else {
-            return sub;
-        };
-        let pdf_emit = pmf * es.pdf_pos * es.pdf_dir;
-        // Emission is evaluated at connection time, so the endpoint's own throughput is 1 / density.
-        let mut endpoint = Vertex::light(scene, li, &es, Spectrum::splat(1.0 / (pmf * es.pdf_pos)), 0.0);
-        // For environment lights the direction is the endpoint's coordinate (its density the origin's)
-        // and the disk point belongs to the first hit's density; `pdf_light_origin` knows both cases.
-        endpoint.pdf_from_light = endpoint.pdf_light_origin(scene);
-        let cos = if es.ng == Vec3::ZERO { 1.0 } else { es.ng.dot(es.dir).abs() };
-        let beta = es.le * (cos / pdf_emit);
-        let origin = if endpoint.is_surface() { offset_origin(es.p, es.ng, es.dir) } else { es.p };
-        sub.light.push(endpoint);
-        if beta.is_finite() && beta.max_element() > 0.0 {
+        let Some(start) = sample_light_endpoint(scene, u_light, u_pos, u_dir) else { return sub };
+        sub.light.push(start.vertex);
+        if start.beta.is_finite() && start.beta.max_element() > 0.0 {
             walk::extend(
                 scene,
                 &mut sub.light,
-                Ray::new(origin, es.dir),
-                beta,
+                start.ray,
+                start.beta,
                 TransportMode::Importance,
                 WalkLimits { max_vertices: light_max, rr_depth },
                 sampler,
@@ -338,6 +325,34 @@ pub fn connection_pdfs(scene: &Scene, path: &PathView, t: usize) -> PathPdfs {
             PathView::density(scene, after(t - 1), at(t - 1), at(t - 2), TransportMode::Importance);
     }
     pdfs
+}
+
+/// The start of a light sub-path: the emitter endpoint, the emitted ray leaving it and the ray's
+/// throughput (emission · cos / density).
+#[derive(Clone, Copy, Debug)]
+pub struct LightEndpoint {
+    pub vertex: Vertex,
+    pub ray: Ray,
+    pub beta: Spectrum,
+}
+
+/// Samples the emitter endpoint of a light sub-path from three uniform draws (light choice, position,
+/// direction), as BDPT's light walk starts; path-space MLT's bidirectional mutation regenerates
+/// emitters with it so its densities are BDPT's.
+pub fn sample_light_endpoint(scene: &Scene, u_light: f32, u_pos: Vec2, u_dir: Vec2) -> Option<LightEndpoint> {
+    let (li, pmf, _) = scene.light_selector.sample(u_light)?;
+    let light = &scene.lights[li];
+    let es = light.sample_le(u_pos, u_dir, scene.bounds.center(), scene.radius())?;
+    let pdf_emit = pmf * es.pdf_pos * es.pdf_dir;
+    // Emission is evaluated at connection time, so the endpoint's own throughput is 1 / density.
+    let mut vertex = Vertex::light(scene, li, &es, Spectrum::splat(1.0 / (pmf * es.pdf_pos)), 0.0);
+    // For environment lights the direction is the endpoint's coordinate (its density the origin's)
+    // and the disk point belongs to the first hit's density; `pdf_light_origin` knows both cases.
+    vertex.pdf_from_light = vertex.pdf_light_origin(scene);
+    let cos = if es.ng == Vec3::ZERO { 1.0 } else { es.ng.dot(es.dir).abs() };
+    let beta = es.le * (cos / pdf_emit);
+    let origin = if vertex.is_surface() { offset_origin(es.p, es.ng, es.dir) } else { es.p };
+    Some(LightEndpoint { vertex, ray: Ray::new(origin, es.dir), beta })
 }
 
 /// A light endpoint for next-event connections (s = 1), with β = 1 / (its density).

@@ -195,6 +195,26 @@ impl Light {
         valid.then_some(sample)
     }
 
+    /// Samples only the direction of an emitted ray from a point already on the light (emitting-side
+    /// normal `n` for area lights), as `sample_le` would draw it from `u_dir`: (direction, solid-angle
+    /// density, equal to `pdf_le_dir`). Path-space mutations use it to regrow a light sub-path from a
+    /// kept emitter vertex. `None` for infinite lights, whose emitted rays have no fixed origin.
+    pub fn sample_le_dir(&self, n: Vec3, u_dir: Vec2) -> Option<(Vec3, f32)> {
+        let (dir, pdf) = match self {
+            Light::Area(_) => {
+                let local = crate::sampling::square_to_cosine_hemisphere(u_dir);
+                let dir = crate::geometry::Frame::from_normal(n).to_world(local);
+                (dir, local.z.max(0.0) * std::f32::consts::FRAC_1_PI)
+            }
+            Light::Point(_) => {
+                (crate::sampling::square_to_uniform_sphere(u_dir), crate::sampling::uniform_sphere_pdf())
+            }
+            Light::Spot(l) => l.sample_direction(u_dir),
+            Light::Constant { .. } | Light::Env(_) => return None,
+        };
+        (pdf > 0.0 && pdf.is_finite() && dir != Vec3::ZERO).then_some((dir, pdf))
+    }
+
     /// Solid-angle density with which `sample_le` emits along `dir` from a point with emitting-side
     /// normal `n` (area lights) — for infinite lights `dir` is the direction of travel.
     pub fn pdf_le_dir(&self, n: Vec3, dir: Vec3) -> f32 {

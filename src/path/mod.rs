@@ -366,6 +366,18 @@ impl Vertex {
         }
     }
 
+    /// An emission direction drawn at this (kept) emitter endpoint, with the density that
+    /// `pdf_light_emission` converts to area: the direction part of `Light::sample_le`. `None` for
+    /// infinite lights and non-emitters.
+    pub fn sample_emission_direction(&self, scene: &Scene, u: Vec2) -> Option<Vec3> {
+        let light = &scene.lights[self.light?];
+        let n = match light {
+            Light::Area(_) => AreaLight::emitting_normal(&self.surface_point()),
+            _ => Vec3::ZERO,
+        };
+        light.sample_le_dir(n, u).map(|(dir, _)| dir)
+    }
+
     /// Area density at `next` of emission from this emitter endpoint towards it.
     pub fn pdf_light_emission(&self, scene: &Scene, next: &Vertex) -> f32 {
         let Some(li) = self.light else { return 0.0 };

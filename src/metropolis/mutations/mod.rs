@@ -3,6 +3,7 @@
 //! densities T(y→x)/T(x→y) in the measure of `PathState::contribution` (product area measure with the
 //! Dirac deltas of specular vertices cancelled, see `Vertex::dirac_lobe`).
 
+pub mod bidir;
 pub mod halfvector;
 mod manifold;
 
@@ -88,7 +89,7 @@ impl MutationKind {
 
     /// Whether this build implements the mutation.
     pub fn available(self) -> bool {
-        matches!(self, MutationKind::HalfVector | MutationKind::Manifold)
+        matches!(self, MutationKind::Bidirectional | MutationKind::HalfVector | MutationKind::Manifold)
     }
 }
 
@@ -122,14 +123,12 @@ pub fn make<'a>(
     _scene: &Scene,
 ) -> Option<Box<dyn Mutation<PathState, PathContext<'a>>>> {
     match kind {
+        MutationKind::Bidirectional => Some(Box::new(bidir::BidirectionalMutation)),
         MutationKind::HalfVector => Some(Box::new(halfvector::HalfVectorMutation::new(settings.halfvector))),
         MutationKind::Manifold => {
             Some(Box::new(ManifoldPerturbation::new(settings.lambda, settings.specular_threshold)))
         }
-        MutationKind::Bidirectional
-        | MutationKind::Lens
-        | MutationKind::Caustic
-        | MutationKind::MultiChain => None,
+        MutationKind::Lens | MutationKind::Caustic | MutationKind::MultiChain => None,
     }
 }
 

@@ -1,0 +1,367 @@
+//! Veach's bidirectional mutation (Veach & Guibas 1997, §5.3.1; Veach 1997, §11.4.2; design after
+//! Mitsuba 0.6's `mut_bidir`): delete a sub-path of the current path, regrow new vertices from both kept
+//! ends by random walks and join them with one connection edge. The transition density sums, for the
+//! same kept ends, over every split of the new vertices between the two walks that could have made y.
+
+use crate::bsdf::{BsdfContext, TransportMode};
+use crate::geometry::{offset_origin, Ray, Vec2};
+use crate::integrators::bdpt::sample_light_endpoint;
+use crate::integrators::Bdpt;
+use crate::metropolis::chain::{Failure, Mutation, MutationStats, Proposal};
+use crate::metropolis::path_state::{PathContext, PathState};
+use crate::path::walk::{self, WalkLimits};
+use crate::path::{visible, PathView, Vertex, VertexKind};
+use crate::sampling::Sampler;
+use crate::scene::Scene;
+use crate::spectrum::Spectrum;
+
+/// Longest path (in edges) the mutation proposes, whatever the depth limit: beyond it the two-tailed
+/// length distribution has no measurable mass left and the density sums only cost time.
+const MAX_EDGES: usize = 64;
+
+pub struct BidirectionalMutation;
+
+/// Edge counts the mutation may propose: a 1-edge path (the camera sees the emitter) lies outside the
+/// integrated space when emitters are hidden.
+fn edge_range(bdpt: &Bdpt) -> (usize, usize) {
+    let k_min = if bdpt.hide_emitters { 2 } else { 1 };
+    let k_max = bdpt.max_path_vertices().saturating_sub(1).min(MAX_EDGES);
+    (k_min, k_max)
+}
+
+fn two_tailed_weight(centre: usize, value: usize) -> f64 {
+    0.5f64.powi(value.abs_diff(centre).min(1000) as i32)
+}
+
+/// P(value) for the two-tailed geometric distribution ∝ 2^−|value − centre| on [lo, hi].
+fn two_tailed_pmf(centre: usize, lo: usize, hi: usize, value: usize) -> f64 {
+    if lo > hi || value < lo || value > hi {
+        return 0.0;
+    }
+    let total: f64 = (lo..=hi).map(|v| two_tailed_weight(centre, v)).sum();
+    two_tailed_weight(centre, value) / total
+}
+
+fn sample_two_tailed(centre: usize, lo: usize, hi: usize, u: f64) -> Option<usize> {
+    if lo > hi {
+        return None;
+    }
+    let total: f64 = (lo..=hi).map(|v| two_tailed_weight(centre, v)).sum();
+    let mut rest = u * total;
+    for v in lo..=hi {
+        rest -= two_tailed_weight(centre, v);
+        if rest < 0.0 {
+            return Some(v);
+        }
+    }
+    Some(hi)
+}
+
+/// The smallest number of deleted edges: enough to reach the new length, and two when the length is
+/// kept (deleting one edge and adding one back would only reconnect the same two vertices).
+fn min_deleted(k: usize, k_new: usize) -> usize {
+    let lo = (k + 1).saturating_sub(k_new);
+    lo.max(if k_new == k { 2 } else { 1 })
+}
+
+/// T(x→y) for the path `to` (y) proposed from a path x of `from_edges` edges by keeping `to[..=a]` and
+/// replacing `deleted` edges of x after x_a by `added` edges; y's kept suffix starts at `a + added`
+/// (empty when that is `to.len()`, the emitter was regenerated). P(k'|k) P(kd|k,k') P(a|k,kd) times
+/// Σ_s P(s) p_s(y) over the splits s of the new vertices into s light-side and the rest eye-side ones
+/// that the sampler could have used, each p_s the product of the Dirac-convention densities
+/// (`PathView::dirac_pdfs`) of the new vertices from their own side.
+pub fn transition_density(
+    scene: &Scene,
+    bdpt: &Bdpt,
+    from_edges: usize,
+    to: &[Vertex],
+    a: usize,
+    deleted: usize,
+    added: usize,
+) -> f64 {
+    let (k_min, k_max) = edge_range(bdpt);
+    let (k, n) = (from_edges, to.len());
+    let c = a + added;
+    if n < 2 || added == 0 || deleted == 0 || c > n || n - 1 + deleted != k + added {
+        return 0.0;
+    }
+    if a + deleted > k + 1 {
+        return 0.0;
+    }
+    let k_new = n - 1;
+    let p_length = two_tailed_pmf(k, k_min, k_max, k_new);
+    let p_deleted = two_tailed_pmf(2, min_deleted(k, k_new), k + 1, deleted);
+    let p_position = 1.0 / (k + 2 - deleted) as f64;
+    let suffix_empty = c == n;
+    if suffix_empty && deleted == 1 {
+        return 0.0;
+    }
+    if to[a].delta
+        || (!suffix_empty && dirac_scatter(scene, &to[c]))
+        || (suffix_empty && to[n - 1].is_delta_light(scene))
+    {
+        return 0.0;
+    }
+    let s_lo = usize::from(suffix_empty);
+    if added - 1 < s_lo {
+        return 0.0;
+    }
+    let kept_environment = !suffix_empty && c == n - 1 && to[n - 1].kind == VertexKind::InfiniteLight;
+    let pdfs = PathView::whole(to).dirac_pdfs(scene);
+    let p_split = 1.0 / (added - s_lo) as f64;
+    let mut sum = 0.0;
+    for s in s_lo..added {
+        if kept_environment && s >= 1 {
+            continue;
+        }
+        let t = added - 1 - s;
+        let (eye_end, light_end) = (&to[a + t], &to[a + t + 1]);
+        let camera_to_environment =
+            eye_end.kind == VertexKind::Camera && light_end.kind == VertexKind::InfiniteLight;
+        if !eye_end.connectible() || !light_end.connectible() || camera_to_environment {
+            continue;
+        }
+        let eye: f64 = pdfs.from_camera[a + 1..=a + t].iter().map(|&p| p as f64).product();
+        let light: f64 = pdfs.from_light[c - s..c].iter().map(|&p| p as f64).product();
+        sum += p_split * eye * light;
+    }
+    p_length * p_deleted * p_position * sum
+}
+
+/// Whether a kept vertex scattered through a Dirac lobe. A point or spot light endpoint is flagged
+/// `delta` for its Dirac position, not for a lobe: it stays a valid kept end, from which emission
+/// directions are sampled with a proper density.
+fn dirac_scatter(scene: &Scene, v: &Vertex) -> bool {
+    v.delta && !v.is_delta_light(scene)
+}
+
+/// Whether two vertices are the same kept vertex (copied, so bit-identical).
+fn same_vertex(x: &Vertex, y: &Vertex) -> bool {
+    x.kind == y.kind && x.p == y.p
+}
+
+/// T(x→y) with the kept prefix and suffix recovered by comparing the paths (new vertices never
+/// coincide with deleted ones except on a set of measure zero), for checks from outside.
+pub fn transition_density_between(scene: &Scene, bdpt: &Bdpt, x: &[Vertex], y: &[Vertex]) -> f64 {
+    let shorter = x.len().min(y.len());
+    let prefix = x.iter().zip(y).take_while(|(u, v)| same_vertex(u, v)).count().min(shorter);
+    let suffix = x
+        .iter()
+        .rev()
+        .zip(y.iter().rev())
+        .take_while(|(u, v)| same_vertex(u, v))
+        .count()
+        .min(shorter - prefix);
+    if prefix == 0 {
+        return 0.0;
+    }
+    let a = prefix - 1;
+    let deleted = x.len() - suffix - a;
+    let added = y.len() - suffix - a;
+    transition_density(scene, bdpt, x.len() - 1, y, a, deleted, added)
+}
+
+/// A direction sampled by the BSDF at a kept vertex `v` (with `wi` towards `towards`), as the first
+/// ray of a walk. Dirac lobes are refused so kept vertices stay non-Dirac in both directions.
+fn kept_vertex_ray(
+    scene: &Scene,
+    v: &Vertex,
+    towards: &Vertex,
+    mode: TransportMode,
+    rng: &mut Sampler,
+) -> Result<Ray, Failure> {
+    let bsdf = v.bsdf(scene).ok_or(Failure::Failed("kept_vertex_not_surface"))?;
+    let ctx = BsdfContext { mode, uv: v.uv };
+    let wi = v.frame.to_local(v.direction_to(towards));
+    let u_lobe = rng.next_1d();
+    let u = rng.next_2d();
+    let bs = bsdf.sample(&ctx, wi, u_lobe, u).ok_or(Failure::Failed("bsdf_sample"))?;
+    if bs.lobe.is_delta() {
+        return Err(Failure::Failed("dirac_lobe_at_kept_vertex"));
+    }
+    if !(bs.pdf > 0.0) {
+        return Err(Failure::Failed("bsdf_sample"));
+    }
+    let wo = v.frame.to_world(bs.wo);
+    Ok(Ray::new(offset_origin(v.p, v.ng, wo), wo))
+}
+
+/// Grows `path` by exactly `count` vertices along `ray` without Russian roulette.
+fn walk_exactly(
+    ctx: &mut PathContext,
+    path: &mut Vec<Vertex>,
+    ray: Ray,
+    mode: TransportMode,
+    count: usize,
+    rng: &mut Sampler,
+) -> Result<(), Failure> {
+    let target = path.len() + count;
+    let limits = WalkLimits { max_vertices: target, rr_depth: -1 };
+    let escaped = walk::extend(ctx.scene, path, ray, Spectrum::ONE, mode, limits, rng, &mut ctx.counters);
+    if escaped.is_some() {
+        return Err(Failure::Failed("walk_escaped"));
+    }
+    if path.len() != target {
+        return Err(Failure::Failed("walk_absorbed"));
+    }
+    Ok(())
+}
+
+impl<'a> Mutation<PathState, PathContext<'a>> for BidirectionalMutation {
+    fn name(&self) -> &'static str {
+        "bidir"
+    }
+
+    fn propose(
+        &mut self,
+        current: &PathState,
+        ctx: &mut PathContext<'a>,
+        rng: &mut Sampler,
+        stats: &mut MutationStats,
+    ) -> Result<Proposal<PathState>, Failure> {
+        let scene = ctx.scene;
+        let x = &current.vertices;
+        if x.len() < 2 {
+            return Err(Failure::NotApplicable);
+        }
+        let k = x.len() - 1;
+        let (k_min, k_max) = edge_range(ctx.bdpt);
+        let k_new = sample_two_tailed(k, k_min, k_max, rng.next_f64()).ok_or(Failure::NotApplicable)?;
+        let deleted = sample_two_tailed(2, min_deleted(k, k_new), k + 1, rng.next_f64())
+            .ok_or(Failure::Failed("no_deletion"))?;
+        let added = k_new + deleted - k;
+        let positions = k + 2 - deleted;
+        let a = ((rng.next_f64() * positions as f64) as usize).min(positions - 1);
+        let b = a + deleted;
+        let suffix_empty = b == k + 1;
+        if suffix_empty && deleted == 1 {
+            return Err(Failure::Failed("emitter_would_be_inner"));
+        }
+        if x[a].delta || (!suffix_empty && dirac_scatter(scene, &x[b])) {
+            return Err(Failure::Failed("dirac_kept_vertex"));
+        }
+        if suffix_empty && x[k].is_delta_light(scene) {
+            return Err(Failure::Failed("dirac_light"));
+        }
+        let s_lo = usize::from(suffix_empty);
+        if added - 1 < s_lo {
+            return Err(Failure::Failed("no_split"));
+        }
+        let splits = added - s_lo;
+        let s = s_lo + ((rng.next_f64() * splits as f64) as usize).min(splits - 1);
+        let t = added - 1 - s;
+        if !suffix_empty && b == k && x[k].kind == VertexKind::InfiniteLight && s >= 1 {
+            return Err(Failure::Failed("unsupported"));
+        }
+
+        let mut eye: Vec<Vertex> = x[..=a].to_vec();
+        if t > 0 {
+            let ray = if a == 0 {
+                let u = rng.next_2d();
+                let film = Vec2::new(u.x * scene.film.width as f32, u.y * scene.film.height as f32);
+                scene.camera.generate_ray(film)
+            } else {
+                kept_vertex_ray(scene, &x[a], &x[a - 1], TransportMode::Radiance, rng)?
+            };
+            walk_exactly(ctx, &mut eye, ray, TransportMode::Radiance, t, rng)?;
+        }
+
+        // The light side is held from the emitter inwards, as the walk grows it.
+        let mut light: Vec<Vertex>;
+        if suffix_empty {
+            let (u_light, u_pos, u_dir) = (rng.next_1d(), rng.next_2d(), rng.next_2d());
+            let start =
+                sample_light_endpoint(scene, u_light, u_pos, u_dir).ok_or(Failure::Failed("no_emission"))?;
+            if start.vertex.is_delta_light(scene) {
+                // Dirac emitters are never regenerated (see `transition_density`).
+                return Err(Failure::Failed("dirac_light"));
+            }
+            light = vec![start.vertex];
+            if s > 1 {
+                walk_exactly(ctx, &mut light, start.ray, TransportMode::Importance, s - 1, rng)?;
+            }
+        } else {
+            light = x[b..].iter().rev().copied().collect();
+            if s > 0 {
+                let ray = if b == k {
+                    let emitter = &x[k];
+                    let dir = emitter
+                        .sample_emission_direction(scene, rng.next_2d())
+                        .ok_or(Failure::Failed("no_emission"))?;
+                    let origin = if emitter.is_surface() {
+                        offset_origin(emitter.p, emitter.ng, dir)
+                    } else {
+                        emitter.p
+                    };
+                    Ray::new(origin, dir)
+                } else {
+                    kept_vertex_ray(scene, &x[b], &x[b + 1], TransportMode::Importance, rng)?
+                };
+                walk_exactly(ctx, &mut light, ray, TransportMode::Importance, s, rng)?;
+            }
+        }
+
+        let (eye_end, light_end) = (&eye[eye.len() - 1], &light[light.len() - 1]);
+        let camera_to_environment =
+            eye_end.kind == VertexKind::Camera && light_end.kind == VertexKind::InfiniteLight;
+        if !eye_end.connectible() || !light_end.connectible() || camera_to_environment {
+            return Err(Failure::Failed("not_connectible"));
+        }
+        ctx.counters.rays += 1;
+        if !visible(scene, eye_end, light_end) {
+            return Err(Failure::Failed("occluded"));
+        }
+        let mut y = eye;
+        y.extend(light.iter().rev());
+        if y.len() > ctx.max_vertices() || y.len() != k_new + 1 {
+            return Err(Failure::Failed("too_long"));
+        }
+        let state = PathState::new(scene, y).ok_or(Failure::Failed("zero_contribution"))?;
+
+        let forward = transition_density(scene, ctx.bdpt, k, &state.vertices, a, deleted, added);
+        let reverse = transition_density(scene, ctx.bdpt, k_new, x, a, added, deleted);
+        let t_ratio = reverse / forward;
+        if !(forward > 0.0 && forward.is_finite() && reverse.is_finite() && t_ratio.is_finite()) {
+            return Err(Failure::Failed("degenerate_density"));
+        }
+        stats.add_sum("deleted_vertices", (deleted - 1) as f64);
+        stats.add_sum("added_vertices", (added - 1) as f64);
+        Ok(Proposal { state, t_ratio })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn two_tailed_lengths_are_normalised_and_sampled_by_their_pmf() {
+        for (centre, lo, hi) in [(3, 1, 8), (1, 2, 64), (70, 1, 64), (2, 2, 2)] {
+            let total: f64 = (lo..=hi).map(|v| two_tailed_pmf(centre, lo, hi, v)).sum();
+            assert!((total - 1.0).abs() < 1e-12, "({centre}, {lo}, {hi}): sums to {total}");
+            assert_eq!(two_tailed_pmf(centre, lo, hi, hi + 1), 0.0);
+            // Frequencies of 20 000 draws within 5 binomial standard deviations of the pmf.
+            let n = 20_000;
+            let mut rng = Sampler::new(1, centre as u64, lo as u64);
+            let mut counts = vec![0usize; hi + 1];
+            for _ in 0..n {
+                counts[sample_two_tailed(centre, lo, hi, rng.next_f64()).unwrap()] += 1;
+            }
+            for (v, &count) in counts.iter().enumerate().skip(lo) {
+                let p = two_tailed_pmf(centre, lo, hi, v);
+                let sd = (n as f64 * p * (1.0 - p)).sqrt();
+                assert!((count as f64 - n as f64 * p).abs() <= 5.0 * sd + 1.0, "value {v}");
+            }
+        }
+        assert_eq!(sample_two_tailed(2, 3, 1, 0.5), None);
+    }
+
+    #[test]
+    fn deletions_never_reconnect_the_same_vertices_and_reach_the_new_length() {
+        assert_eq!(min_deleted(4, 4), 2);
+        assert_eq!(min_deleted(4, 5), 1);
+        assert_eq!(min_deleted(4, 2), 3);
+        // k' = 1 from k = 4: four of the five edges (counting the light supernode's) must go.
+        assert_eq!(min_deleted(4, 1), 4);
+    }
+}
