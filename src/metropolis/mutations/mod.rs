@@ -3,6 +3,11 @@
 //! densities T(y→x)/T(x→y) in the measure of `PathState::contribution` (product area measure with the
 //! Dirac deltas of specular vertices cancelled, see `Vertex::dirac_lobe`).
 
+pub mod caustic;
+pub mod lens;
+pub mod multichain;
+pub mod perturb;
+
 use super::chain::Mutation;
 use super::path_state::{PathContext, PathState};
 use crate::scene::Scene;
@@ -83,7 +88,7 @@ impl MutationKind {
 
     /// Whether this build implements the mutation.
     pub fn available(self) -> bool {
-        false
+        matches!(self, MutationKind::Lens | MutationKind::Caustic | MutationKind::MultiChain)
     }
 }
 
@@ -108,12 +113,10 @@ pub fn make<'a>(
     _scene: &Scene,
 ) -> Option<Box<dyn Mutation<PathState, PathContext<'a>>>> {
     match kind {
-        MutationKind::Bidirectional
-        | MutationKind::Lens
-        | MutationKind::Caustic
-        | MutationKind::MultiChain
-        | MutationKind::Manifold
-        | MutationKind::HalfVector => None,
+        MutationKind::Lens => Some(Box::new(lens::LensPerturbation)),
+        MutationKind::Caustic => Some(Box::new(caustic::CausticPerturbation)),
+        MutationKind::MultiChain => Some(Box::new(multichain::MultiChainPerturbation)),
+        MutationKind::Bidirectional | MutationKind::Manifold | MutationKind::HalfVector => None,
     }
 }
 
