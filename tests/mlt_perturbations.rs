@@ -334,3 +334,158 @@ fn multichain_perturbation_satisfies_detailed_balance() {
     assert_balanced(&b, "multichain on the caustic scene", 0.01);
 }
 
+
+#[test]
+fn lens_retrace_from_the_proposal_lands_back_on_the_path() {
+    // The lens perturbation is deterministic given the film position, so moving y's image point back
+    // by x.film − y.film must retrace x's vertices (reversibility of the trace, which T(y→x) assumes)
+    // and give the reciprocal density ratio. Positions agree to rounding: f32 hits along chains of up
+    // to a few glass interfaces drift by ~1e-5 of the scene size, so 1e-3 of it separates rounding from
+    // a different path; the ratio product is 1 to the same relative order.
+    for rel in [CAUSTIC, CORNELL] {
+        let scene = scene(rel);
+        let bdpt = bdpt(&scene);
+        let seeds = seeds(&scene, &bdpt, 5, 20_000);
+        let lens = LensPerturbation;
+        let mut ctx = PathContext::new(&scene, &bdpt);
+        let mut rng = Sampler::new(41, 0, 0);
+        let (mut checked, mut through_glass) = (0, 0);
+        let tolerance = 1e-3 * scene.radius();
+        for _ in 0..3000 {
+            let Some(x) = seeds.draw(&scene, &bdpt, 5, rng.next_f64()) else { continue };
+            let mut m = lens;
+            let Ok(y) = m.propose(&x, &mut ctx, &mut rng, &mut MutationStats::default()) else { continue };
+            let offset = x.film - y.state.film;
+            let back = lens
+                .perturb_to(&mut ctx, &y.state, y.state.film + offset)
+                .unwrap_or_else(|e| panic!("{rel}: retracing a proposal back failed: {e:?}"));
+            assert_eq!(back.state.len(), x.len());
+            for (i, (a, b)) in back.state.vertices.iter().zip(&x.vertices).enumerate() {
+                let d = (a.p - b.p).length();
+                assert!(d <= tolerance, "{rel}: vertex {i} retraced {d:.2e} away (path of {})", x.len());
+                assert_eq!(a.delta, b.delta, "{rel}: vertex {i} changed its specular flag");
+            }
+            let product = y.t_ratio * back.t_ratio;
+            assert!((product - 1.0).abs() < 1e-3, "{rel}: T ratios forward × back = {product}");
+            let f_ratio = target(&back.state) / target(&x);
+            assert!((f_ratio - 1.0).abs() < 1e-3, "{rel}: f of the retraced path differs by {f_ratio}");
+            checked += 1;
+            if x.vertices[1].delta {
+                through_glass += 1;
+            }
+        }
+        eprintln!("{rel}: {checked} proposals retraced, {through_glass} through a specular chain");
+        assert!(checked > 1000, "{rel}: only {checked} proposals");
+        if rel == CAUSTIC {
+            assert!(through_glass > 30, "too few camera-side specular chains ({through_glass})");
+        }
+    }
+}
+
+/// A seed path of `rel` for which `pick` holds.
+fn find_path(rel: &str, pick: impl Fn(&Scene, &PathState) -> bool) -> (Scene, Bdpt, PathState) {
+    let scene = scene(rel);
+    let bdpt = bdpt(&scene);
+    let seeds = seeds(&scene, &bdpt, 9, 20_000);
+    let mut rng = Sampler::new(43, 0, 0);
+    for _ in 0..20_000 {
+        if let Some(x) = seeds.draw(&scene, &bdpt, 9, rng.next_f64()) {
+            if pick(&scene, &x) {
+                return (scene, bdpt, x);
+            }
+        }
+    }
+    panic!("{rel}: no seed path of the requested shape");
+}
+
+fn propose_with(kind: MutationKind, scene: &Scene, bdpt: &Bdpt, x: &PathState, tries: usize) -> Vec<Result<f64, Failure>> {
+    let mut m = mutation(kind, scene);
+    let mut ctx = PathContext::new(scene, bdpt);
+    let mut rng = Sampler::new(47, 0, 0);
+    (0..tries)
+        .map(|_| m.propose(x, &mut ctx, &mut rng, &mut MutationStats::default()).map(|p| p.t_ratio))
+        .collect()
+}
+
+#[test]
+fn each_perturbation_applies_to_the_path_shapes_it_is_for() {
+    // Camera sees the glass ball: E S … — the lens perturbation moves it along the specular chain; the
+    // caustic perturbation needs a non-specular x_1.
+    let (s, b, x) = find_path(CAUSTIC, |_, x| x.vertices[1].delta);
+    let c = LensPerturbation::applicable(&s, &x.vertices, b.hide_emitters).expect("lens applies to E S+ D");
+    assert!(c >= 2 && !x.vertices[c].delta);
+    let lens = propose_with(MutationKind::Lens, &s, &b, &x, 50);
+    assert!(lens.iter().any(|r| r.is_ok()), "the lens perturbation never moved E S+ D: {lens:?}");
+    assert!(CausticPerturbation::applicable(&x.vertices).is_none());
+    assert!(propose_with(MutationKind::Caustic, &s, &b, &x, 5).iter().all(|r| *r == Err(Failure::NotApplicable)));
+
+    // The caustic itself: E D S S L. The caustic perturbation (m = the light) and the multi-chain
+    // perturbation apply; the lens perturbation cannot connect the floor to the glass.
+    let (s, b, x) = find_path(CAUSTIC, |_, x| {
+        x.len() == 5 && !x.vertices[1].delta && x.vertices[2].delta && x.vertices[3].delta
+    });
+    assert_eq!(CausticPerturbation::applicable(&x.vertices), Some(4));
+    let layout = MultiChainPerturbation::applicable(&s, &x.vertices).expect("multi-chain applies to E D S S L");
+    assert_eq!((layout.c, layout.chains.clone(), layout.ends_on_emitter), (1, vec![(1, 4)], true));
+    assert!(LensPerturbation::applicable(&s, &x.vertices, b.hide_emitters).is_none());
+    let caustic = propose_with(MutationKind::Caustic, &s, &b, &x, 200);
+    assert!(caustic.iter().any(|r| r.is_ok()), "the caustic perturbation never moved the caustic: {caustic:?}");
+    let multichain = propose_with(MutationKind::MultiChain, &s, &b, &x, 400);
+    assert!(multichain.iter().any(|r| r.is_ok()), "multi-chain never moved the caustic: {multichain:?}");
+
+    // Diffuse-only paths: no specular chain, so no multi-chain; caustic needs at least x_0 x_1 x_2.
+    let (s, b, x) = find_path(CORNELL, |_, x| x.len() == 3);
+    assert_eq!(CausticPerturbation::applicable(&x.vertices), Some(2));
+    assert!(MultiChainPerturbation::applicable(&s, &x.vertices).is_none());
+    assert!(propose_with(MutationKind::MultiChain, &s, &b, &x, 5).iter().all(|r| *r == Err(Failure::NotApplicable)));
+    assert_eq!(LensPerturbation::applicable(&s, &x.vertices, b.hide_emitters), Some(1));
+    if !b.hide_emitters {
+        // The camera sees the light: x_0 x_1 with x_1 the emitter. Caustic's m does not exist.
+        let (s, b, x) = find_path(CORNELL, |_, x| x.len() == 2);
+        assert!(propose_with(MutationKind::Caustic, &s, &b, &x, 5).iter().all(|r| *r == Err(Failure::NotApplicable)));
+        assert_eq!(LensPerturbation::applicable(&s, &x.vertices, b.hide_emitters), Some(1));
+        assert!(LensPerturbation::applicable(&s, &x.vertices, true).is_none(), "hidden emitters: no 2-vertex paths");
+    }
+}
+
+#[test]
+fn degenerate_input_is_rejected_and_counted_never_nan() {
+    let (s, b, x) = find_path(CAUSTIC, |_, x| x.vertices[1].delta);
+    let lens = LensPerturbation;
+    let mut ctx = PathContext::new(&s, &b);
+    for film in [Vec2::new(f32::NAN, 3.0), Vec2::new(-0.5, 3.0), Vec2::new(3.0, 32.0), Vec2::splat(f32::INFINITY)] {
+        assert_eq!(lens.perturb_to(&mut ctx, &x, film).err(), Some(Failure::Failed("outside_image")), "{film:?}");
+    }
+    // Long chains of every mutation on the caustic scene: every failure is a counted reason, and no
+    // proposal is ever invalid (NaN or infinite f or ratio), so nothing but finite weights is recorded.
+    use hslt::metropolis::{Chain, WeightedMutation};
+    for kind in [MutationKind::Lens, MutationKind::Caustic, MutationKind::MultiChain] {
+        let seeds = seeds(&s, &b, 3, 16_384);
+        let mut totals = MutationStats::default();
+        for c in 0..16 {
+            let mut rng = Sampler::new(51, c, 0);
+            let start = loop {
+                if let Some(x) = seeds.draw(&s, &b, 3, rng.next_f64()) {
+                    break x;
+                }
+            };
+            let mutations = vec![WeightedMutation { mutation: mutation(kind, &s), weight: 1.0 }];
+            let mut chain = Chain::new(start, mutations, TargetFunction::Luminance, rng);
+            let mut ctx = PathContext::new(&s, &b);
+            for _ in 0..2000 {
+                chain.step(&mut ctx, &mut |state: &PathState, w: f64| {
+                    assert!(w.is_finite() && w >= 0.0 && state.contribution.is_finite());
+                });
+            }
+            totals.add(&chain.stats()[0]);
+        }
+        eprintln!("{}: {totals:?}", kind.name());
+        assert_eq!(totals.rejected_invalid, 0, "{}: invalid proposals", kind.name());
+        let accounted = totals.accepted
+            + totals.rejected
+            + totals.rejected_zero
+            + totals.not_applicable
+            + totals.failed_total();
+        assert_eq!(accounted, totals.proposed, "{}: every proposal is counted once", kind.name());
+    }
+}
