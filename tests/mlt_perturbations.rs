@@ -13,7 +13,7 @@ use hslt::integrators::{make_with, Bdpt, DepthLimits, Integrator, IntegratorKind
 use hslt::metropolis::mutations::caustic::CausticPerturbation;
 use hslt::metropolis::mutations::lens::LensPerturbation;
 use hslt::metropolis::mutations::multichain::MultiChainPerturbation;
-use hslt::metropolis::mutations::{self, perturb};
+use hslt::metropolis::mutations;
 use hslt::metropolis::{
     Failure, MltSettings, Mutation, MutationKind, MutationSettings, MutationStats, PathContext, PathMlt,
     PathSeeds, PathState, TargetFunction,
@@ -63,6 +63,7 @@ fn mean_se(values: &[f64]) -> (f64, f64) {
 
 /// What the detailed-balance check measured for one mutation on one scene.
 #[derive(Debug)]
+#[allow(dead_code)] // the counts are read through the Debug print of each check
 struct Balance {
     proposals: usize,
     not_applicable: usize,
@@ -166,7 +167,12 @@ fn tally_proposals<'a>(
             }
             Err(Failure::Failed(_)) => t.failed += 1,
             Ok(p) => {
-                assert!(p.t_ratio.is_finite() && p.t_ratio >= 0.0, "{rel} {}: t_ratio {}", kind.name(), p.t_ratio);
+                assert!(
+                    p.t_ratio.is_finite() && p.t_ratio >= 0.0,
+                    "{rel} {}: t_ratio {}",
+                    kind.name(),
+                    p.t_ratio
+                );
                 let c = p.state.contribution;
                 assert!(c.is_finite() && c.min_element() >= 0.0, "{rel} {}: f(y) = {c:?}", kind.name());
                 let ty = target(&p.state);
@@ -308,7 +314,10 @@ fn assert_balanced(b: &Balance, what: &str, min_valid: f64) {
         b.e_r_below_band,
         b.p_r_above_band
     );
-    assert!(se1 < 0.03 * b.p_valid && se2 < 0.03 * b.p_valid, "{what}: the check has no power ({se1}, {se2})");
+    assert!(
+        se1 < 0.03 * b.p_valid && se2 < 0.03 * b.p_valid,
+        "{what}: the check has no power ({se1}, {se2})"
+    );
 }
 
 #[test]
@@ -333,7 +342,6 @@ fn multichain_perturbation_satisfies_detailed_balance() {
     let b = balance(CAUSTIC, MutationKind::MultiChain, 60_000, 4);
     assert_balanced(&b, "multichain on the caustic scene", 0.01);
 }
-
 
 #[test]
 fn lens_retrace_from_the_proposal_lands_back_on_the_path() {
@@ -398,7 +406,13 @@ fn find_path(rel: &str, pick: impl Fn(&Scene, &PathState) -> bool) -> (Scene, Bd
     panic!("{rel}: no seed path of the requested shape");
 }
 
-fn propose_with(kind: MutationKind, scene: &Scene, bdpt: &Bdpt, x: &PathState, tries: usize) -> Vec<Result<f64, Failure>> {
+fn propose_with(
+    kind: MutationKind,
+    scene: &Scene,
+    bdpt: &Bdpt,
+    x: &PathState,
+    tries: usize,
+) -> Vec<Result<f64, Failure>> {
     let mut m = mutation(kind, scene);
     let mut ctx = PathContext::new(scene, bdpt);
     let mut rng = Sampler::new(47, 0, 0);
@@ -417,7 +431,9 @@ fn each_perturbation_applies_to_the_path_shapes_it_is_for() {
     let lens = propose_with(MutationKind::Lens, &s, &b, &x, 50);
     assert!(lens.iter().any(|r| r.is_ok()), "the lens perturbation never moved E S+ D: {lens:?}");
     assert!(CausticPerturbation::applicable(&x.vertices).is_none());
-    assert!(propose_with(MutationKind::Caustic, &s, &b, &x, 5).iter().all(|r| *r == Err(Failure::NotApplicable)));
+    assert!(propose_with(MutationKind::Caustic, &s, &b, &x, 5)
+        .iter()
+        .all(|r| *r == Err(Failure::NotApplicable)));
 
     // The caustic itself: E D S S L. The caustic perturbation (m = the light) and the multi-chain
     // perturbation apply; the lens perturbation cannot connect the floor to the glass.
@@ -425,11 +441,15 @@ fn each_perturbation_applies_to_the_path_shapes_it_is_for() {
         x.len() == 5 && !x.vertices[1].delta && x.vertices[2].delta && x.vertices[3].delta
     });
     assert_eq!(CausticPerturbation::applicable(&x.vertices), Some(4));
-    let layout = MultiChainPerturbation::applicable(&s, &x.vertices).expect("multi-chain applies to E D S S L");
+    let layout =
+        MultiChainPerturbation::applicable(&s, &x.vertices).expect("multi-chain applies to E D S S L");
     assert_eq!((layout.c, layout.chains.clone(), layout.ends_on_emitter), (1, vec![(1, 4)], true));
     assert!(LensPerturbation::applicable(&s, &x.vertices, b.hide_emitters).is_none());
     let caustic = propose_with(MutationKind::Caustic, &s, &b, &x, 200);
-    assert!(caustic.iter().any(|r| r.is_ok()), "the caustic perturbation never moved the caustic: {caustic:?}");
+    assert!(
+        caustic.iter().any(|r| r.is_ok()),
+        "the caustic perturbation never moved the caustic: {caustic:?}"
+    );
     let multichain = propose_with(MutationKind::MultiChain, &s, &b, &x, 400);
     assert!(multichain.iter().any(|r| r.is_ok()), "multi-chain never moved the caustic: {multichain:?}");
 
@@ -437,14 +457,21 @@ fn each_perturbation_applies_to_the_path_shapes_it_is_for() {
     let (s, b, x) = find_path(CORNELL, |_, x| x.len() == 3);
     assert_eq!(CausticPerturbation::applicable(&x.vertices), Some(2));
     assert!(MultiChainPerturbation::applicable(&s, &x.vertices).is_none());
-    assert!(propose_with(MutationKind::MultiChain, &s, &b, &x, 5).iter().all(|r| *r == Err(Failure::NotApplicable)));
+    assert!(propose_with(MutationKind::MultiChain, &s, &b, &x, 5)
+        .iter()
+        .all(|r| *r == Err(Failure::NotApplicable)));
     assert_eq!(LensPerturbation::applicable(&s, &x.vertices, b.hide_emitters), Some(1));
     if !b.hide_emitters {
         // The camera sees the light: x_0 x_1 with x_1 the emitter. Caustic's m does not exist.
         let (s, b, x) = find_path(CORNELL, |_, x| x.len() == 2);
-        assert!(propose_with(MutationKind::Caustic, &s, &b, &x, 5).iter().all(|r| *r == Err(Failure::NotApplicable)));
+        assert!(propose_with(MutationKind::Caustic, &s, &b, &x, 5)
+            .iter()
+            .all(|r| *r == Err(Failure::NotApplicable)));
         assert_eq!(LensPerturbation::applicable(&s, &x.vertices, b.hide_emitters), Some(1));
-        assert!(LensPerturbation::applicable(&s, &x.vertices, true).is_none(), "hidden emitters: no 2-vertex paths");
+        assert!(
+            LensPerturbation::applicable(&s, &x.vertices, true).is_none(),
+            "hidden emitters: no 2-vertex paths"
+        );
     }
 }
 
@@ -453,8 +480,14 @@ fn degenerate_input_is_rejected_and_counted_never_nan() {
     let (s, b, x) = find_path(CAUSTIC, |_, x| x.vertices[1].delta);
     let lens = LensPerturbation;
     let mut ctx = PathContext::new(&s, &b);
-    for film in [Vec2::new(f32::NAN, 3.0), Vec2::new(-0.5, 3.0), Vec2::new(3.0, 32.0), Vec2::splat(f32::INFINITY)] {
-        assert_eq!(lens.perturb_to(&mut ctx, &x, film).err(), Some(Failure::Failed("outside_image")), "{film:?}");
+    for film in
+        [Vec2::new(f32::NAN, 3.0), Vec2::new(-0.5, 3.0), Vec2::new(3.0, 32.0), Vec2::splat(f32::INFINITY)]
+    {
+        assert_eq!(
+            lens.perturb_to(&mut ctx, &x, film).err(),
+            Some(Failure::Failed("outside_image")),
+            "{film:?}"
+        );
     }
     // Long chains of every mutation on the caustic scene: every failure is a counted reason, and no
     // proposal is ever invalid (NaN or infinite f or ratio), so nothing but finite weights is recorded.
@@ -488,4 +521,151 @@ fn degenerate_input_is_rejected_and_counted_never_nan() {
             + totals.failed_total();
         assert_eq!(accounted, totals.proposed, "{}: every proposal is counted once", kind.name());
     }
+}
+
+fn image_mean(img: &ImageBuf) -> f64 {
+    img.data.iter().map(|&v| v as f64).sum::<f64>() / img.data.len() as f64
+}
+
+/// Block means (8 × 8 pixels, channel-averaged): coarse, because chains that run only one
+/// perturbation cannot leave the path shape they started in, so their images are blotchy.
+fn blocks(img: &ImageBuf) -> Vec<f64> {
+    let (bw, nx, ny) = (8, img.width / 8, img.height / 8);
+    let mut out = vec![0.0; nx * ny];
+    for y in 0..ny * bw {
+        for x in 0..nx * bw {
+            let p = img.pixel(x, y);
+            out[(y / bw) * nx + x / bw] += (p[0] + p[1] + p[2]) as f64 / (3.0 * (bw * bw) as f64);
+        }
+    }
+    out
+}
+
+/// Σ_j (ā_j − b̄_j)² / Σ_j (s²_a,j / K_a + s²_b,j / K_b) over blocks j, from independent runs: about 1
+/// when both sets have the same expectation, larger with a bias.
+fn discrepancy(a: &[Vec<f64>], b: &[Vec<f64>]) -> f64 {
+    let stats = |runs: &[Vec<f64>], j: usize| {
+        let col: Vec<f64> = runs.iter().map(|r| r[j]).collect();
+        let (m, se) = mean_se(&col);
+        (m, se * se)
+    };
+    let (mut num, mut den) = (0.0, 0.0);
+    for j in 0..a[0].len() {
+        let ((ma, va), (mb, vb)) = (stats(a, j), stats(b, j));
+        num += (ma - mb).powi(2);
+        den += va + vb;
+    }
+    num / den
+}
+
+fn meta(out: &hslt::integrators::RenderOutput, key: &str) -> String {
+    out.metadata.iter().find(|(k, _)| k == key).map(|(_, v)| v.clone()).unwrap_or_default()
+}
+
+/// Independent renders (different seeds) of path-space MLT running only `kind`, and of BDPT.
+fn one_mutation_vs_bdpt(rel: &str, kind: MutationKind, runs: u64, mlt_spp: u32, bdpt_spp: u32) {
+    let s = scene(rel);
+    let mut settings = MltSettings::for_technique(vec![(kind, 1.0)]);
+    // Many short chains: each stays within its starting path's shape, so the run-to-run spread is
+    // mostly which seed paths started chains; more chains average more of them.
+    settings.chains = 1024;
+    settings.seed_paths = Some(65_536);
+    let mlt = PathMlt::new("mlt", bdpt(&s), settings);
+    let mut acceptance = Vec::new();
+    let mlt_runs: Vec<Vec<f64>> = (0..runs)
+        .map(|seed| {
+            let options = RenderOptions { spp: Some(mlt_spp), seed: 1000 + seed, ..Default::default() };
+            let out = mlt.render(&s, &options, &AtomicBool::new(false));
+            let img = out.film.to_image();
+            assert!(img.data.iter().all(|v| v.is_finite() && *v >= 0.0), "{rel}: NaN or negative pixel");
+            assert_eq!(out.stats.invalid_samples, 0, "{rel} {}: invalid proposals", kind.name());
+            acceptance
+                .push(meta(&out, &format!("hslt.mlt.{}.acceptance", kind.name())).parse::<f64>().unwrap());
+            let mut b = blocks(&img);
+            b.push(image_mean(&img));
+            b
+        })
+        .collect();
+    let limits = DepthLimits { max_depth: s.integrator.max_depth, rr_depth: s.integrator.rr_depth };
+    let bdpt_settings = IntegratorSettings::new(limits, s.integrator.hide_emitters);
+    let bdpt_runs: Vec<Vec<f64>> = (0..8)
+        .map(|seed| {
+            let options = RenderOptions { spp: Some(bdpt_spp), seed: 2000 + seed, ..Default::default() };
+            let img = make_with(IntegratorKind::Bdpt, &bdpt_settings)
+                .render(&s, &options, &AtomicBool::new(false))
+                .film
+                .to_image();
+            let mut b = blocks(&img);
+            b.push(image_mean(&img));
+            b
+        })
+        .collect();
+    let last = mlt_runs[0].len() - 1;
+    let block_part = |runs: &[Vec<f64>]| runs.iter().map(|r| r[..last].to_vec()).collect::<Vec<_>>();
+    // The image's scale is b, the seeding pass's estimate, shared by every mutation; how the chains
+    // distribute it over the image is what a perturbation decides. So blocks are compared twice: as
+    // rendered, and divided by each run's own image mean (the shape, free of b's noise).
+    let shape = |runs: &[Vec<f64>]| {
+        runs.iter().map(|r| r[..last].iter().map(|v| v / r[last]).collect()).collect::<Vec<Vec<f64>>>()
+    };
+    let d = discrepancy(&block_part(&mlt_runs), &block_part(&bdpt_runs));
+    let d_shape = discrepancy(&shape(&mlt_runs), &shape(&bdpt_runs));
+    // Power: the shape comparison must see the brightest block (the caustic, or the lit ceiling)
+    // holding 20% more or less of the image than BDPT says.
+    let brightest = (0..last).max_by(|&i, &j| bdpt_runs[0][i].total_cmp(&bdpt_runs[0][j])).unwrap();
+    let distorted = |factor: f64| {
+        let runs: Vec<Vec<f64>> = shape(&bdpt_runs)
+            .into_iter()
+            .map(|mut r| {
+                r[brightest] *= factor;
+                r
+            })
+            .collect();
+        discrepancy(&shape(&mlt_runs), &runs)
+    };
+    let (d_up, d_down) = (distorted(1.2), distorted(1.0 / 1.2));
+    let column = |runs: &[Vec<f64>]| mean_se(&shape(runs).iter().map(|r| r[brightest]).collect::<Vec<_>>());
+    let ((bm, bm_se), (bb, bb_se)) = (column(&mlt_runs), column(&bdpt_runs));
+    let (fm, fm_se) = mean_se(&mlt_runs.iter().map(|r| r[last]).collect::<Vec<_>>());
+    let (fb, fb_se) = mean_se(&bdpt_runs.iter().map(|r| r[last]).collect::<Vec<_>>());
+    let (acc, _) = mean_se(&acceptance);
+    eprintln!(
+        "{rel} {} only: image mean {fm:.5} ± {fm_se:.5} vs BDPT {fb:.5} ± {fb_se:.5}; block discrepancy \
+         {d:.3}, shape {d_shape:.3}; brightest block (shape) {bm:.3} ± {bm_se:.3} vs {bb:.3} ± {bb_se:.3}, \
+         ×1.2: {d_up:.3}, ÷1.2: {d_down:.3}; acceptance {acc:.3}",
+        kind.name()
+    );
+    // With K runs per side, each block's squared difference over its estimated variance is roughly
+    // F-distributed; summed over 16 blocks the ratio has mean ≈ 1 and, with 16 + 8 runs, a spread of
+    // about 0.4 (more with uneven blocks), so 3.0 is about five spreads. The image means must agree within 4 standard errors of
+    // their difference (a t-test with ≥ 7 degrees of freedom: |t| > 4 about once in 200 runs).
+    assert!(d < 3.0, "{rel} {}: blocks differ from BDPT (discrepancy {d:.3})", kind.name());
+    assert!(d_shape < 3.0, "{rel} {}: block shape differs from BDPT ({d_shape:.3})", kind.name());
+    assert!(
+        d_up > 3.0 && d_down > 3.0,
+        "{rel} {}: the comparison has no power ({d_up:.3}, {d_down:.3})",
+        kind.name()
+    );
+    let tol = 4.0 * (fm_se * fm_se + fb_se * fb_se).sqrt();
+    assert!((fm - fb).abs() <= tol, "{rel} {}: mean {fm:.5} vs BDPT {fb:.5} (± {tol:.5})", kind.name());
+}
+
+#[test]
+fn lens_only_chains_reproduce_bdpt_on_the_caustic_scene() {
+    one_mutation_vs_bdpt(CAUSTIC, MutationKind::Lens, 16, 64, 256);
+}
+
+#[test]
+fn caustic_only_chains_reproduce_bdpt_on_the_caustic_scene() {
+    one_mutation_vs_bdpt(CAUSTIC, MutationKind::Caustic, 16, 64, 256);
+}
+
+#[test]
+fn lens_only_chains_reproduce_bdpt_on_the_cornell_box() {
+    one_mutation_vs_bdpt(CORNELL, MutationKind::Lens, 16, 64, 256);
+}
+
+#[test]
+fn multichain_only_chains_reproduce_bdpt_on_the_caustic_scene() {
+    one_mutation_vs_bdpt(CAUSTIC, MutationKind::MultiChain, 16, 64, 256);
 }

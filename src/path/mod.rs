@@ -339,7 +339,13 @@ impl Vertex {
     /// The direction the Dirac lobe of this vertex's BSDF on the `reflect` side sends `wi` to (world
     /// space), chosen as `dirac_lobe` chooses it; `None` if the BSDF has no Dirac lobe on that side.
     /// The perturbations retrace specular chains with it.
-    pub fn dirac_direction(&self, scene: &Scene, wi: Vec3, reflect: bool, mode: TransportMode) -> Option<Vec3> {
+    pub fn dirac_direction(
+        &self,
+        scene: &Scene,
+        wi: Vec3,
+        reflect: bool,
+        mode: TransportMode,
+    ) -> Option<Vec3> {
         let bsdf = self.bsdf(scene)?;
         let ctx = BsdfContext { mode, uv: self.uv };
         let wi_local = self.frame.to_local(wi);
