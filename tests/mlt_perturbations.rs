@@ -176,7 +176,7 @@ fn tally_proposals<'a>(
                 let c = p.state.contribution;
                 assert!(c.is_finite() && c.min_element() >= 0.0, "{rel} {}: f(y) = {c:?}", kind.name());
                 let ty = target(&p.state);
-                if !(ty > 0.0) {
+                if ty <= 0.0 {
                     continue;
                 }
                 let r = ty * p.t_ratio / tx;
@@ -239,7 +239,7 @@ fn balance(rel: &str, kind: MutationKind, n_seeds: usize, per_x: usize) -> Balan
         let mut row = [0.0; 10];
         for c in pss.contributions() {
             let w = luminance(c.value) as f64;
-            if !(w > 0.0) {
+            if w.is_nan() || w <= 0.0 {
                 continue;
             }
             let Some(x) = PathState::new(&scene, c.path(&sub)) else { continue };
