@@ -16,7 +16,7 @@ use hslt::metropolis::mutations::lens::LensPerturbation;
 use hslt::metropolis::mutations::multichain::MultiChainPerturbation;
 use hslt::metropolis::{
     Failure, MltSettings, Mutation, MutationKind, MutationSettings, MutationStats, PathContext, PathMlt,
-    PathSeeds, PathState, TargetFunction,
+    PathSeeds, PathState, Proposal, TargetFunction,
 };
 use hslt::render::RenderOptions;
 use hslt::sampling::Sampler;
@@ -94,8 +94,10 @@ struct Balance {
 /// The second identity holds for any threshold a: E[R 1{R < a}] = P(R > 1/a). a = 1 is the textbook
 /// form, but it is a sign test on ln R, and where a perturbation keeps R within 0.1% of 1 (the
 /// multi-chain perturbation on camera–floor–ball–light paths, where f(y)/f(x) and T(y→x)/T(x→y) cancel
-/// to 1e-3) rounding at the 1e-4 level (ray offsets of 1e-4 scene units, f32 geometry) decides the sign.
-/// The asserted form uses a = 0.98, outside that numerical band; a = 1 is printed for information.
+/// to 1e-3) a bias of 1e-4 decides the sign. The x here are BDPT-built, and BDPT's ray offsets (1e-4
+/// scene units off each surface, magnified by the focusing ball) make their f differ from the same
+/// path retraced exactly by 1e-4 on average (`multichain_retrace_…` measures it), so R from such an x
+/// leans above 1. The asserted form uses a = 0.98, outside that numerical band; a = 1 is printed.
 const BAND: f64 = 0.98;
 
 /// The first identity is E[R 1{R < A}] = P(R > 1/A) with A = ∞. On glossy scenes R has a heavy tail
@@ -343,51 +345,120 @@ fn multichain_perturbation_satisfies_detailed_balance() {
     assert_balanced(&b, "multichain on the caustic scene", 0.01);
 }
 
-#[test]
-fn lens_retrace_from_the_proposal_lands_back_on_the_path() {
-    // The lens perturbation is deterministic given the film position, so moving y's image point back
-    // by x.film − y.film must retrace x's vertices (reversibility of the trace, which T(y→x) assumes)
-    // and give the reciprocal density ratio. Positions agree to rounding: f32 hits along chains of up
-    // to a few glass interfaces drift by ~1e-5 of the scene size, so 1e-3 of it separates rounding from
-    // a different path; the ratio product is 1 to the same relative order.
-    for rel in [CAUSTIC, CORNELL] {
-        let scene = scene(rel);
-        let bdpt = bdpt(&scene);
-        let seeds = seeds(&scene, &bdpt, 5, 20_000);
-        let lens = LensPerturbation;
-        let mut ctx = PathContext::new(&scene, &bdpt);
-        let mut rng = Sampler::new(41, 0, 0);
-        let (mut checked, mut through_glass) = (0, 0);
-        let tolerance = 1e-3 * scene.radius();
-        for _ in 0..3000 {
-            let Some(x) = seeds.draw(&scene, &bdpt, 5, rng.next_f64()) else { continue };
-            let mut m = lens;
-            let Ok(y) = m.propose(&x, &mut ctx, &mut rng, &mut MutationStats::default()) else { continue };
-            let offset = x.film - y.state.film;
-            let back = lens
-                .perturb_to(&mut ctx, &y.state, y.state.film + offset)
-                .unwrap_or_else(|e| panic!("{rel}: retracing a proposal back failed: {e:?}"));
-            assert_eq!(back.state.len(), x.len());
-            for (i, (a, b)) in back.state.vertices.iter().zip(&x.vertices).enumerate() {
-                let d = (a.p - b.p).length();
-                assert!(d <= tolerance, "{rel}: vertex {i} retraced {d:.2e} away (path of {})", x.len());
-                assert_eq!(a.delta, b.delta, "{rel}: vertex {i} changed its specular flag");
-            }
-            let product = y.t_ratio * back.t_ratio;
-            assert!((product - 1.0).abs() < 1e-3, "{rel}: T ratios forward × back = {product}");
-            let f_ratio = target(&back.state) / target(&x);
-            assert!((f_ratio - 1.0).abs() < 1e-3, "{rel}: f of the retraced path differs by {f_ratio}");
-            checked += 1;
-            if x.vertices[1].delta {
-                through_glass += 1;
-            }
+/// How closely retraced paths reproduce the paths they retrace.
+#[derive(Default)]
+struct Retrace {
+    /// Largest vertex distance, over the scene radius.
+    worst_position: f64,
+    /// f(x')/f(x) − 1 and T(x→y)/T(y→x) · T(y→x')/T(x'→y) − 1 per retrace.
+    f_errors: Vec<f64>,
+    ratio_errors: Vec<f64>,
+    /// Retraces that did not reach the path at all.
+    failures: usize,
+}
+
+impl Retrace {
+    fn add(&mut self, scene: &Scene, x: &PathState, back: &PathState, forward_ratio: f64, back_ratio: f64) {
+        assert_eq!(back.len(), x.len(), "the retrace changed the path length");
+        for (i, (p, q)) in back.vertices.iter().zip(&x.vertices).enumerate() {
+            self.worst_position = self.worst_position.max(((p.p - q.p).length() / scene.radius()) as f64);
+            assert_eq!(p.delta, q.delta, "vertex {i} changed its specular flag");
         }
-        eprintln!("{rel}: {checked} proposals retraced, {through_glass} through a specular chain");
-        assert!(checked > 1000, "{rel}: only {checked} proposals");
-        if rel == CAUSTIC {
-            assert!(through_glass > 30, "too few camera-side specular chains ({through_glass})");
+        self.f_errors.push(target(back) / target(x) - 1.0);
+        self.ratio_errors.push(forward_ratio * back_ratio - 1.0);
+    }
+
+    fn worst(&self) -> f64 {
+        self.f_errors.iter().chain(&self.ratio_errors).fold(0.0f64, |a, &e| a.max(e.abs()))
+    }
+
+    fn summary(&self) -> String {
+        let (fe, fe_se) = mean_se(&self.f_errors);
+        let (re, re_se) = mean_se(&self.ratio_errors);
+        format!(
+            "{} retraces ({} failed): worst position {:.1e} of the scene radius; f(x')/f(x) − 1 = {fe:.1e} ± {fe_se:.1e}, \
+             ratio product − 1 = {re:.1e} ± {re_se:.1e}, worst {:.1e}",
+            self.f_errors.len(),
+            self.failures,
+            self.worst_position,
+            self.worst()
+        )
+    }
+}
+
+/// A traced path x (one perturbation away from a seed path, so built by the same deterministic
+/// trace), a proposal y from it, and y retraced back towards x by `back`.
+fn retrace_round_trips(
+    rel: &str,
+    kind: MutationKind,
+    trips: usize,
+    back: impl Fn(&mut PathContext, &PathState, &PathState) -> Result<Proposal<PathState>, Failure>,
+) -> (Retrace, Retrace, usize) {
+    let scene = scene(rel);
+    let bdpt = bdpt(&scene);
+    let seeds = seeds(&scene, &bdpt, 5, 40_000);
+    let mut m = mutation(kind, &scene);
+    let mut ctx = PathContext::new(&scene, &bdpt);
+    let mut rng = Sampler::new(41, 0, 0);
+    let (mut traced, mut seeded, mut through_glass) = (Retrace::default(), Retrace::default(), 0);
+    for _ in 0..200_000 {
+        if traced.f_errors.len() >= trips {
+            break;
+        }
+        let Some(x0) = seeds.draw(&scene, &bdpt, 5, rng.next_f64()) else { continue };
+        let Ok(x) = m.propose(&x0, &mut ctx, &mut rng, &mut MutationStats::default()) else { continue };
+        match back(&mut ctx, &x.state, &x0) {
+            Ok(x_back) => seeded.add(&scene, &x0, &x_back.state, x.t_ratio, x_back.t_ratio),
+            Err(_) => seeded.failures += 1,
+        }
+        let Ok(y) = m.propose(&x.state, &mut ctx, &mut rng, &mut MutationStats::default()) else { continue };
+        let y_back = back(&mut ctx, &y.state, &x.state)
+            .unwrap_or_else(|e| panic!("{rel} {}: retracing a traced path back failed: {e:?}", kind.name()));
+        traced.add(&scene, &x.state, &y_back.state, y.t_ratio, y_back.t_ratio);
+        if x.state.vertices.iter().any(|v| v.delta) {
+            through_glass += 1;
         }
     }
+    eprintln!("{rel} {}: traced paths: {}", kind.name(), traced.summary());
+    eprintln!("{rel} {}: BDPT-built paths: {}", kind.name(), seeded.summary());
+    (traced, seeded, through_glass)
+}
+
+// The perturbations are deterministic given their random numbers, so moving y's image point (and,
+// for the multi-chain perturbation, each later chain's direction) back to x's must retrace x's
+// vertices and give the reciprocal density ratio: the reversibility T(y→x) assumes. On paths the
+// trace built itself this holds to f32 rounding: positions within 1e-5 of the scene radius, f and the
+// ratio product within 1e-3 (a wrong side, lobe or vertex would be off by far more). Paths BDPT built
+// carry its ray offsets (origins moved 1e-4 off each surface), which a focusing glass ball magnifies:
+// they are reproduced within 1e-3 of the radius and 5% in f when the retrace reaches them at all
+// (near the small light's edge it can miss), and are reported rather than held to rounding.
+
+#[test]
+fn lens_retrace_from_the_proposal_lands_back_on_the_path() {
+    for rel in [CAUSTIC, CORNELL] {
+        let lens = LensPerturbation;
+        let (traced, seeded, through_glass) =
+            retrace_round_trips(rel, MutationKind::Lens, 1000, |ctx, y, x| lens.perturb_to(ctx, y, x.film));
+        assert!(traced.f_errors.len() >= 1000, "{rel}: only {} round trips", traced.f_errors.len());
+        assert!(traced.worst_position < 1e-5 && traced.worst() < 1e-3, "{rel}: {}", traced.summary());
+        assert!(seeded.worst_position < 1e-3 && seeded.worst() < 5e-2, "{rel}: {}", seeded.summary());
+        if rel == CAUSTIC {
+            assert!(through_glass > 30, "too few specular paths retraced ({through_glass})");
+        }
+    }
+}
+
+#[test]
+fn multichain_retrace_from_the_proposal_lands_back_on_the_path() {
+    let m = MultiChainPerturbation;
+    let (traced, seeded, _) = retrace_round_trips(CAUSTIC, MutationKind::MultiChain, 300, |ctx, y, x| {
+        let layout = MultiChainPerturbation::applicable(ctx.scene, &x.vertices).expect("x was perturbed");
+        let mut old = layout.chains.iter().map(|&(a, _)| x.vertices[a].direction_to(&x.vertices[a + 1]));
+        m.perturb_with(ctx, y, x.film, |_| old.next().expect("one direction per chain"))
+    });
+    assert!(traced.f_errors.len() >= 300, "only {} round trips", traced.f_errors.len());
+    assert!(traced.worst_position < 1e-5 && traced.worst() < 1e-3, "{}", traced.summary());
+    assert!(seeded.worst_position < 1e-3 && seeded.worst() < 5e-2, "{}", seeded.summary());
 }
 
 /// A seed path of `rel` for which `pick` holds.

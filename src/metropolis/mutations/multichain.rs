@@ -17,6 +17,7 @@ use super::perturb::{
     sample_film_offset, trace_from_camera, trace_specular_chain,
 };
 use crate::bsdf::TransportMode;
+use crate::geometry::{Vec2, Vec3};
 use crate::metropolis::chain::{Failure, Mutation, MutationStats, Proposal};
 use crate::metropolis::path_state::{PathContext, PathState};
 use crate::path::{Vertex, VertexKind};
@@ -79,17 +80,17 @@ impl MultiChainPerturbation {
     }
 }
 
-impl<'a> Mutation<PathState, PathContext<'a>> for MultiChainPerturbation {
-    fn name(&self) -> &'static str {
-        "multichain"
-    }
-
-    fn propose(
-        &mut self,
+impl MultiChainPerturbation {
+    /// The deterministic part of the move: the path of `current` re-seen through film position
+    /// `film`, each later chain leaving its new start along `turn(old direction)`, with
+    /// T(y→x)/T(x→y) (the turns' density is the same both ways and cancels). Tests call it to retrace
+    /// a proposal back to where it came from.
+    pub fn perturb_with(
+        &self,
+        ctx: &mut PathContext,
         current: &PathState,
-        ctx: &mut PathContext<'a>,
-        rng: &mut Sampler,
-        _stats: &mut MutationStats,
+        film: Vec2,
+        mut turn: impl FnMut(Vec3) -> Vec3,
     ) -> Result<Proposal<PathState>, Failure> {
         let x = &current.vertices;
         let n = x.len();
@@ -97,17 +98,15 @@ impl<'a> Mutation<PathState, PathContext<'a>> for MultiChainPerturbation {
             return Err(Failure::NotApplicable);
         }
         let layout = Self::applicable(ctx.scene, x).ok_or(Failure::NotApplicable)?;
-        let film = current.film + sample_film_offset(ctx.scene, rng);
         let mut y = trace_from_camera(ctx, x, layout.c, film)?;
         let scene = ctx.scene;
         let mut density_y = camera_chain_density(scene, &y);
         let mut density_x = camera_chain_density(scene, &x[..=layout.c]);
-        let (theta1, theta2) = (THETA1_DEGREES.to_radians(), THETA2_DEGREES.to_radians());
         for &(a, b) in &layout.chains {
             if !y[a].connectible() {
                 return Err(Failure::Failed("not_connectible"));
             }
-            let (w, _) = perturb_direction(x[a].direction_to(&x[a + 1]), theta1, theta2, rng);
+            let w = turn(x[a].direction_to(&x[a + 1]));
             let ray = ray_from(&y[a], w);
             let ends_on_emitter = layout.ends_on_emitter && b == n - 1;
             let traced = trace_specular_chain(ctx, &x[a..=b], ray, TransportMode::Radiance, ends_on_emitter)?;
@@ -130,5 +129,26 @@ impl<'a> Mutation<PathState, PathContext<'a>> for MultiChainPerturbation {
         }
         let state = PathState::new(scene, y).ok_or(Failure::Failed("no_contribution"))?;
         Ok(Proposal { state, t_ratio: density_x / density_y })
+    }
+}
+
+impl<'a> Mutation<PathState, PathContext<'a>> for MultiChainPerturbation {
+    fn name(&self) -> &'static str {
+        "multichain"
+    }
+
+    fn propose(
+        &mut self,
+        current: &PathState,
+        ctx: &mut PathContext<'a>,
+        rng: &mut Sampler,
+        _stats: &mut MutationStats,
+    ) -> Result<Proposal<PathState>, Failure> {
+        if Self::applicable(ctx.scene, &current.vertices).is_none() {
+            return Err(Failure::NotApplicable);
+        }
+        let film = current.film + sample_film_offset(ctx.scene, rng);
+        let (theta1, theta2) = (THETA1_DEGREES.to_radians(), THETA2_DEGREES.to_radians());
+        self.perturb_with(ctx, current, film, |w| perturb_direction(w, theta1, theta2, rng).0)
     }
 }

@@ -7,7 +7,7 @@
 //! has the area density p_ω · Π |cos θ_hit| / d² over its traced vertices.
 
 use crate::bsdf::TransportMode;
-use crate::geometry::{offset_origin, Frame, Ray, Vec2, Vec3};
+use crate::geometry::{ray_epsilon, Frame, Ray, Vec2, Vec3};
 use crate::metropolis::chain::Failure;
 use crate::metropolis::path_state::PathContext;
 use crate::path::{visible, Vertex, VertexKind};
@@ -65,13 +65,14 @@ pub fn angular_density(theta: f64, theta1: f64, theta2: f64) -> f64 {
     1.0 / (2.0 * std::f64::consts::PI * (theta2 / theta1).ln() * theta.sin() * theta)
 }
 
-/// A ray leaving vertex `v` along `dir`, offset off its surface towards `dir`.
+/// A ray leaving vertex `v` along `dir` on the exact line through `v.p`, skipping the surface it
+/// leaves by starting at t = ε rather than by moving the origin off the surface (`spawn_ray`). A
+/// moved origin shifts the line by ε = 1e-4 scene units, and a focusing specular chain (a glass ball
+/// imaging a small light onto the floor) magnifies that shift, so retracing a chain would not land
+/// back where it started; starting on the line keeps the retrace exact up to f32 rounding.
 pub fn ray_from(v: &Vertex, dir: Vec3) -> Ray {
-    if v.is_surface() {
-        Ray::new(offset_origin(v.p, v.ng, dir), dir)
-    } else {
-        Ray::new(v.p, dir)
-    }
+    let tmin = if v.is_surface() { ray_epsilon(v.p) } else { 0.0 };
+    Ray { origin: v.p, dir, tmin, tmax: f32::INFINITY }
 }
 
 /// Π over j ≥ 1 of the solid-angle-to-area factor |cos| / d² at `chain[j]` seen from `chain[j−1]`
@@ -136,8 +137,8 @@ pub fn trace_specular_chain(
             return Err(Failure::Failed("no_dirac_lobe"));
         };
         v.delta = true;
+        ray = ray_from(&v, wo);
         out.push(v);
-        ray = si.spawn_ray(wo);
     }
     Ok(out)
 }
