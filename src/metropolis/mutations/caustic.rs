@@ -13,10 +13,11 @@
 //! T(y→x) = 0 (a valid proposal that is always rejected).
 
 use super::perturb::{
-    angular_density, conversion_product_reversed, film_radius_range, first_non_delta, perturb_direction,
-    radians_per_pixel, ray_from, trace_specular_chain,
+    angular_density, connect_visible, conversion_product_reversed, film_radius_range, first_non_delta,
+    perturb_direction, radians_per_pixel, ray_from, trace_specular_chain,
 };
 use crate::bsdf::TransportMode;
+use crate::geometry::Vec3;
 use crate::metropolis::chain::{Failure, Mutation, MutationStats, Proposal};
 use crate::metropolis::path_state::{PathContext, PathState};
 use crate::path::{Vertex, VertexKind};
@@ -50,6 +51,54 @@ impl CausticPerturbation {
     }
 }
 
+impl CausticPerturbation {
+    /// The deterministic part of the move: the chain of `current` retraced from x_m along `w_new`,
+    /// at angle `theta` from the old direction x_m → x_{m−1}, with T(y→x)/T(x→y). Tests call it to
+    /// retrace a proposal back to where it came from.
+    pub fn perturb_to(
+        &self,
+        ctx: &mut PathContext,
+        current: &PathState,
+        w_new: Vec3,
+        theta: f64,
+    ) -> Result<Proposal<PathState>, Failure> {
+        let x = &current.vertices;
+        if x.len() > ctx.max_vertices() {
+            return Err(Failure::NotApplicable);
+        }
+        let m = Self::applicable(x).ok_or(Failure::NotApplicable)?;
+        let scene = ctx.scene;
+        let (theta1, theta2) = Self::angle_range(scene, x, m);
+        // The chain in tracing order, from the light side: x_m, x_{m−1}, …, x_1.
+        let old: Vec<Vertex> = x[1..=m].iter().rev().copied().collect();
+        let ray = ray_from(&x[m], w_new);
+        let traced = trace_specular_chain(ctx, &old, ray, TransportMode::Importance, false)?;
+        let y1 = traced[traced.len() - 1];
+        if !y1.connectible() {
+            return Err(Failure::Failed("not_connectible"));
+        }
+        if scene.camera.film_position(x[0].direction_to(&y1)).is_none() {
+            return Err(Failure::Failed("outside_image"));
+        }
+        if !connect_visible(ctx, &x[0], &y1) {
+            return Err(Failure::Failed("occluded"));
+        }
+        let mut y = Vec::with_capacity(x.len());
+        y.push(x[0]);
+        y.extend(traced.iter().rev().copied());
+        y.extend_from_slice(&x[m..]);
+        let (y_theta1, y_theta2) = Self::angle_range(scene, &y, m);
+        let forward = angular_density(theta, theta1, theta2) * conversion_product_reversed(scene, &y[1..=m]);
+        let backward =
+            angular_density(theta, y_theta1, y_theta2) * conversion_product_reversed(scene, &x[1..=m]);
+        if !(forward > 0.0 && forward.is_finite()) {
+            return Err(Failure::Failed("zero_density"));
+        }
+        let state = PathState::new(scene, y).ok_or(Failure::Failed("no_contribution"))?;
+        Ok(Proposal { state, t_ratio: backward / forward })
+    }
+}
+
 impl<'a> Mutation<PathState, PathContext<'a>> for CausticPerturbation {
     fn name(&self) -> &'static str {
         "caustic"
@@ -67,39 +116,12 @@ impl<'a> Mutation<PathState, PathContext<'a>> for CausticPerturbation {
             return Err(Failure::NotApplicable);
         }
         let m = Self::applicable(x).ok_or(Failure::NotApplicable)?;
-        let scene = ctx.scene;
-        let (theta1, theta2) = Self::angle_range(scene, x, m);
+        let (theta1, theta2) = Self::angle_range(ctx.scene, x, m);
         if !(theta1 > 0.0 && theta2 > theta1 && theta2.is_finite()) {
             return Err(Failure::Failed("degenerate_range"));
         }
         let w = x[m].direction_to(&x[m - 1]);
         let (w_new, theta) = perturb_direction(w, theta1, theta2, rng);
-        // The chain in tracing order, from the light side: x_m, x_{m−1}, …, x_1.
-        let old: Vec<Vertex> = x[1..=m].iter().rev().copied().collect();
-        let ray = ray_from(&x[m], w_new);
-        let traced = trace_specular_chain(ctx, &old, ray, TransportMode::Importance, false)?;
-        let y1 = traced[traced.len() - 1];
-        if !y1.connectible() {
-            return Err(Failure::Failed("not_connectible"));
-        }
-        if scene.camera.film_position(x[0].direction_to(&y1)).is_none() {
-            return Err(Failure::Failed("outside_image"));
-        }
-        if !super::perturb::connect_visible(ctx, &x[0], &y1) {
-            return Err(Failure::Failed("occluded"));
-        }
-        let mut y = Vec::with_capacity(x.len());
-        y.push(x[0]);
-        y.extend(traced.iter().rev().copied());
-        y.extend_from_slice(&x[m..]);
-        let (y_theta1, y_theta2) = Self::angle_range(scene, &y, m);
-        let forward = angular_density(theta, theta1, theta2) * conversion_product_reversed(scene, &y[1..=m]);
-        let backward =
-            angular_density(theta, y_theta1, y_theta2) * conversion_product_reversed(scene, &x[1..=m]);
-        if !(forward > 0.0 && forward.is_finite()) {
-            return Err(Failure::Failed("zero_density"));
-        }
-        let state = PathState::new(scene, y).ok_or(Failure::Failed("no_contribution"))?;
-        Ok(Proposal { state, t_ratio: backward / forward })
+        self.perturb_to(ctx, current, w_new, theta)
     }
 }

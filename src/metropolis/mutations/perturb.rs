@@ -57,6 +57,12 @@ pub fn perturb_direction(w: Vec3, theta1: f64, theta2: f64, rng: &mut Sampler) -
     (rotate_direction(w, theta, phi), theta)
 }
 
+/// The angle between two unit directions, accurate for tiny angles (atan2 of |a × b| and a · b).
+pub fn angle_between(a: Vec3, b: Vec3) -> f64 {
+    let (a, b) = (a.as_dvec3(), b.as_dvec3());
+    a.cross(b).length().atan2(a.dot(b))
+}
+
 /// Solid-angle density of `perturb_direction` at angle θ with range [θ1, θ2] (0 outside).
 pub fn angular_density(theta: f64, theta1: f64, theta2: f64) -> f64 {
     if !(theta >= theta1 && theta <= theta2 && theta2 > theta1) {
