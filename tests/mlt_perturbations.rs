@@ -713,7 +713,8 @@ fn one_mutation_vs_bdpt(
         .collect();
     let last = mlt_runs[0].len() - 1;
     let block_part = |runs: &[Vec<f64>]| runs.iter().map(|r| r[..last].to_vec()).collect::<Vec<_>>();
-    // The image's scale is b, the seeding pass's estimate, shared by every mutation; how the chains
+    // The image's scale is b, the seeding pass's estimate, shared by every mutation (with the same
+    // seeds the three perturbations' image means agree to all digits); how the chains
     // distribute it over the image is what a perturbation decides. So blocks are compared twice: as
     // rendered, and divided by each run's own image mean (the shape, free of b's noise).
     let shape = |runs: &[Vec<f64>]| {

@@ -24,7 +24,7 @@ use crate::path::{Vertex, VertexKind};
 use crate::sampling::Sampler;
 use crate::scene::Scene;
 
-/// Smallest angle by which each later chain's direction is turned (Mitsuba's mchain default).
+/// Smallest angle by which each later chain's direction is turned (the range issue #6 specifies).
 pub const THETA1_DEGREES: f64 = 0.0001;
 /// Largest angle by which each later chain's direction is turned.
 pub const THETA2_DEGREES: f64 = 0.1;
