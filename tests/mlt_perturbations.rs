@@ -152,6 +152,7 @@ fn tally_proposals<'a>(
     rng: &mut Sampler,
     x: &PathState,
     per_x: usize,
+    ratio: &dyn Fn(&Scene, &PathState, &PathState, f64) -> f64,
 ) -> Tally {
     let tx = target(x);
     assert!(tx > 0.0 && tx.is_finite());
@@ -181,7 +182,7 @@ fn tally_proposals<'a>(
                 if ty <= 0.0 {
                     continue;
                 }
-                let r = ty * p.t_ratio / tx;
+                let r = ty * ratio(ctx.scene, x, &p.state, p.t_ratio) / tx;
                 assert!(r.is_finite(), "{rel} {}: R = {r}", kind.name());
                 t.valid += 1;
                 t.acceptance += r.min(1.0);
@@ -224,6 +225,18 @@ fn tally_proposals<'a>(
 /// both the proposals' noise and how well the seeds represent π — drawing with replacement from a
 /// fixed seeding pass would hide the latter (rare caustic paths would be repeated many times).
 fn balance(rel: &str, kind: MutationKind, n_seeds: usize, per_x: usize) -> Balance {
+    balance_with(rel, kind, n_seeds, per_x, &|_, _, _, t| t)
+}
+
+/// `balance` with the mutation's T(y→x)/T(x→y) replaced by `ratio(scene, x, y, t_ratio)`, to show
+/// the identities see a wrong density ratio.
+fn balance_with(
+    rel: &str,
+    kind: MutationKind,
+    n_seeds: usize,
+    per_x: usize,
+    ratio: &dyn Fn(&Scene, &PathState, &PathState, f64) -> f64,
+) -> Balance {
     use hslt::metropolis::pssmlt::PssContext;
     use hslt::metropolis::Pssmlt;
     use hslt::spectrum::luminance;
@@ -245,7 +258,7 @@ fn balance(rel: &str, kind: MutationKind, n_seeds: usize, per_x: usize) -> Balan
                 continue;
             }
             let Some(x) = PathState::new(&scene, c.path(&sub)) else { continue };
-            let t = tally_proposals(rel, kind, m.as_mut(), &mut ctx, &mut rng, &x, per_x);
+            let t = tally_proposals(rel, kind, m.as_mut(), &mut ctx, &mut rng, &x, per_x, ratio);
             let k = per_x as f64;
             let d1 = (t.r_valid - t.reversible as f64) / k;
             let d2 = (t.r_below_one - t.above_one as f64) / k;
@@ -328,6 +341,23 @@ fn lens_perturbation_satisfies_detailed_balance() {
         let b = balance(rel, MutationKind::Lens, 60_000, 4);
         assert_balanced(&b, &format!("lens on {rel}"), 0.2);
     }
+}
+
+#[test]
+fn the_balance_identities_see_a_missing_jacobian() {
+    // The lens perturbation's ratio without the area factor |cos θ_1| / d² of the new x_1 (what a
+    // mutation that forgot the solid-angle-to-area conversion would return): the identities must
+    // reject it on the cornell box, where the factor changes by some percent per perturbation.
+    let without_area_factor = |scene: &Scene, x: &PathState, y: &PathState, t: f64| {
+        let conv = |p: &PathState| perturb::conversion_product(scene, &p.vertices[..2]);
+        t * conv(y) / conv(x)
+    };
+    let b = balance_with(CORNELL, MutationKind::Lens, 20_000, 4, &without_area_factor);
+    let ((m1, se1), (m2, se2)) = (b.identity1, b.identity2);
+    assert!(
+        m1.abs() > 4.0 * se1 || m2.abs() > 4.0 * se2,
+        "a missing Jacobian went unnoticed: {m1:.5} ± {se1:.5}, {m2:.5} ± {se2:.5}"
+    );
 }
 
 #[test]
