@@ -145,8 +145,7 @@ impl Tally {
 
 /// Proposes `per_x` times from `x` and tallies R = target(y) t_ratio / target(x) per proposal.
 fn tally_proposals<'a>(
-    rel: &str,
-    kind: MutationKind,
+    what: &str,
     m: &mut dyn Mutation<PathState, PathContext<'a>>,
     ctx: &mut PathContext<'a>,
     rng: &mut Sampler,
@@ -177,13 +176,13 @@ fn tally_proposals<'a>(
                     p.t_ratio
                 );
                 let c = p.state.contribution;
-                assert!(c.is_finite() && c.min_element() >= 0.0, "{rel} {}: f(y) = {c:?}", kind.name());
+                assert!(c.is_finite() && c.min_element() >= 0.0, "{what}: f(y) = {c:?}");
                 let ty = target(&p.state);
                 if ty <= 0.0 {
                     continue;
                 }
                 let r = ty * ratio(ctx.scene, x, &p.state, p.t_ratio) / tx;
-                assert!(r.is_finite(), "{rel} {}: R = {r}", kind.name());
+                assert!(r.is_finite(), "{what}: R = {r}");
                 t.valid += 1;
                 t.acceptance += r.min(1.0);
                 t.r_valid += r;
@@ -246,6 +245,7 @@ fn balance_with(
     let mut ctx = PathContext::new(&scene, &bdpt);
     let mut rng = Sampler::new(23, kind as u64, 0);
     // Per seed sample: Σ w, Σ w d1, Σ w d2 and the valid / reversible / above-one counts weighted.
+    let what = format!("{rel} {}", kind.name());
     let mut per_sample: Vec<[f64; 10]> = Vec::with_capacity(n_seeds);
     let mut total = Tally::default();
     for i in 0..n_seeds {
@@ -258,7 +258,7 @@ fn balance_with(
                 continue;
             }
             let Some(x) = PathState::new(&scene, c.path(&sub)) else { continue };
-            let t = tally_proposals(rel, kind, m.as_mut(), &mut ctx, &mut rng, &x, per_x, ratio);
+            let t = tally_proposals(&what, m.as_mut(), &mut ctx, &mut rng, &x, per_x, ratio);
             let k = per_x as f64;
             let d1 = (t.r_valid - t.reversible as f64) / k;
             let d2 = (t.r_below_one - t.above_one as f64) / k;
