@@ -169,12 +169,7 @@ fn tally_proposals<'a>(
             }
             Err(Failure::Failed(_)) => t.failed += 1,
             Ok(p) => {
-                assert!(
-                    p.t_ratio.is_finite() && p.t_ratio >= 0.0,
-                    "{rel} {}: t_ratio {}",
-                    kind.name(),
-                    p.t_ratio
-                );
+                assert!(p.t_ratio.is_finite() && p.t_ratio >= 0.0, "{what}: t_ratio {}", p.t_ratio);
                 let c = p.state.contribution;
                 assert!(c.is_finite() && c.min_element() >= 0.0, "{what}: f(y) = {c:?}");
                 let ty = target(&p.state);
