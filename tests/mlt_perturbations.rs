@@ -28,7 +28,43 @@ const CAUSTIC: &str = "scenes/caustic/scene.xml";
 const CORNELL: &str = "scenes/cornell-box/scene.xml";
 const MATERIALS: &str = "scenes/materials/scene.xml";
 
+/// A glass ball on a diffuse floor under a constant sky, the caustic scene's geometry with an
+/// environment endpoint: specular chains that end by escaping (E S S Env, E D S S Env).
+const SKY_BALL: &str = "glass ball under a sky";
+
+const SKY_BALL_XML: &str = r#"<scene version="3.0.0">
+    <integrator type="path"><integer name="max_depth" value="8" /></integrator>
+    <sensor type="perspective">
+        <float name="fov" value="40" />
+        <transform name="to_world"><lookat origin="0, 2.2, 3.2" target="0, 0.35, 0" up="0, 1, 0" /></transform>
+        <film type="hdrfilm">
+            <integer name="width" value="32" /><integer name="height" value="32" />
+            <rfilter type="box" />
+        </film>
+    </sensor>
+    <shape type="rectangle">
+        <transform name="to_world"><scale value="2" /><rotate x="1" angle="-90" /></transform>
+        <bsdf type="diffuse"><rgb name="reflectance" value="0.7, 0.7, 0.7" /></bsdf>
+    </shape>
+    <shape type="sphere">
+        <point name="center" x="0" y="0.5" z="0" /><float name="radius" value="0.5" />
+        <bsdf type="dielectric"><float name="int_ior" value="1.5" /><float name="ext_ior" value="1.0" /></bsdf>
+    </shape>
+    <emitter type="constant"><rgb name="radiance" value="1, 1, 1" /></emitter>
+</scene>
+"#;
+
+/// Loads a scene of the repository at 32 × 32 (or `SKY_BALL`, written to a file of its own first).
 fn scene(rel: &str) -> Scene {
+    if rel == SKY_BALL {
+        static WRITTEN: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+        let n = WRITTEN.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let path = std::env::temp_dir().join(format!("hslt-perturb-sky-{}-{n}.xml", std::process::id()));
+        std::fs::write(&path, SKY_BALL_XML).expect("write the sky scene");
+        let scene = load_scene(&path, &[]).unwrap_or_else(|e| panic!("{rel}: {e:#}"));
+        let _ = std::fs::remove_file(&path);
+        return scene;
+    }
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(rel);
     load_scene(&path, &[("resx", "32"), ("resy", "32")]).unwrap_or_else(|e| panic!("{rel}: {e:#}"))
 }
@@ -334,7 +370,7 @@ fn assert_balanced(b: &Balance, what: &str, min_valid: f64) {
 
 #[test]
 fn lens_perturbation_satisfies_detailed_balance() {
-    for rel in [CAUSTIC, CORNELL, MATERIALS] {
+    for rel in [CAUSTIC, CORNELL, MATERIALS, SKY_BALL] {
         let b = balance(rel, MutationKind::Lens, 60_000, 4);
         assert_balanced(&b, &format!("lens on {rel}"), 0.2);
     }
@@ -367,9 +403,12 @@ fn caustic_perturbation_satisfies_detailed_balance() {
 
 #[test]
 fn multichain_perturbation_satisfies_detailed_balance() {
-    // Only the caustic scene has paths with a second specular chain (camera, floor, glass ball, light).
+    // Only the glass-ball scenes have paths with a second specular chain (camera, floor, glass ball,
+    // light or sky).
     let b = balance(CAUSTIC, MutationKind::MultiChain, 60_000, 4);
     assert_balanced(&b, "multichain on the caustic scene", 0.01);
+    let b = balance(SKY_BALL, MutationKind::MultiChain, 30_000, 4);
+    assert_balanced(&b, "multichain under the sky", 0.01);
 }
 
 /// How closely retraced paths reproduce the paths they retrace.
@@ -579,6 +618,29 @@ fn each_perturbation_applies_to_the_path_shapes_it_is_for() {
     );
     let multichain = propose_with(MutationKind::MultiChain, &s, &b, &x, 400);
     assert!(multichain.iter().any(|r| r.is_ok()), "multi-chain never moved the caustic: {multichain:?}");
+
+    // The same under a sky: E D S S Env ends on an environment endpoint, which the caustic
+    // perturbation cannot turn a direction at, and the multi-chain perturbation ends by escaping;
+    // E S S Env (the camera sees the sky through the ball) moves with the lens perturbation.
+    use hslt::path::VertexKind;
+    let (s, b, x) = find_path(SKY_BALL, |_, x| {
+        x.len() == 5 && !x.vertices[1].delta && x.vertices[2].delta && x.vertices[3].delta
+    });
+    assert_eq!(x.vertices[4].kind, VertexKind::InfiniteLight);
+    assert!(CausticPerturbation::applicable(&x.vertices).is_none());
+    assert!(MultiChainPerturbation::applicable(&s, &x.vertices).is_some_and(|l| l.ends_on_emitter));
+    let mut m = mutation(MutationKind::MultiChain, &s);
+    let mut ctx = PathContext::new(&s, &b);
+    let mut rng = Sampler::new(59, 0, 0);
+    let escaped = (0..400)
+        .filter_map(|_| m.propose(&x, &mut ctx, &mut rng, &mut MutationStats::default()).ok())
+        .filter(|p| p.state.vertices[4].kind == VertexKind::InfiniteLight)
+        .count();
+    assert!(escaped > 0, "the multi-chain perturbation never escaped to the sky");
+    let (s, b, x) = find_path(SKY_BALL, |_, x| x.len() == 4 && x.vertices[1].delta && x.vertices[2].delta);
+    assert_eq!(LensPerturbation::applicable(&s, &x.vertices, b.hide_emitters), Some(3));
+    let lens = propose_with(MutationKind::Lens, &s, &b, &x, 50);
+    assert!(lens.iter().any(|r| r.is_ok()), "the lens perturbation never moved E S S Env: {lens:?}");
 
     // Diffuse-only paths: no specular chain, so no multi-chain; caustic needs at least x_0 x_1 x_2.
     let (s, b, x) = find_path(CORNELL, |_, x| x.len() == 3);
