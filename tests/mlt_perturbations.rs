@@ -873,3 +873,8 @@ fn lens_only_chains_reproduce_bdpt_on_the_cornell_box() {
 fn multichain_only_chains_reproduce_bdpt_on_the_caustic_scene() {
     one_mutation_vs_bdpt(CAUSTIC, MutationKind::MultiChain, 16, 65_536, 8, 256);
 }
+
+#[test]
+fn multichain_only_chains_reproduce_bdpt_under_a_sky() {
+    one_mutation_vs_bdpt(SKY_BALL, MutationKind::MultiChain, 32, 65_536, 4, 128);
+}
