@@ -330,6 +330,34 @@ impl Vertex {
         None
     }
 
+    /// True if the path scatters at this vertex by reflection (both directions on one side of the
+    /// shading normal), false for transmission: the side `dirac_lobe` and `dirac_direction` select.
+    pub fn reflects(&self, wi: Vec3, wo: Vec3) -> bool {
+        self.frame.to_local(wi).z * self.frame.to_local(wo).z > 0.0
+    }
+
+    /// The direction the Dirac lobe of this vertex's BSDF on the `reflect` side sends `wi` to (world
+    /// space), chosen as `dirac_lobe` chooses it; `None` if the BSDF has no Dirac lobe on that side.
+    /// The perturbations retrace specular chains with it.
+    pub fn dirac_direction(
+        &self,
+        scene: &Scene,
+        wi: Vec3,
+        reflect: bool,
+        mode: TransportMode,
+    ) -> Option<Vec3> {
+        let bsdf = self.bsdf(scene)?;
+        let ctx = BsdfContext { mode, uv: self.uv };
+        let wi_local = self.frame.to_local(wi);
+        for u_lobe in [0.0, 1.0 - f32::EPSILON] {
+            let Some(bs) = bsdf.sample(&ctx, wi_local, u_lobe, Vec2::splat(0.5)) else { continue };
+            if bs.lobe.is_delta() && (bs.wo.z * wi_local.z > 0.0) == reflect && bs.wo.z != 0.0 {
+                return Some(self.frame.to_world(bs.wo).normalize_or_zero());
+            }
+        }
+        None
+    }
+
     /// This vertex as an area light's surface point.
     fn surface_point(&self) -> SurfacePoint {
         SurfacePoint {

@@ -4,8 +4,12 @@
 //! Dirac deltas of specular vertices cancelled, see `Vertex::dirac_lobe`).
 
 pub mod bidir;
+pub mod caustic;
 pub mod halfvector;
+pub mod lens;
 mod manifold;
+pub mod multichain;
+pub mod perturb;
 
 pub use manifold::ManifoldPerturbation;
 
@@ -89,7 +93,8 @@ impl MutationKind {
 
     /// Whether this build implements the mutation.
     pub fn available(self) -> bool {
-        matches!(self, MutationKind::Bidirectional | MutationKind::HalfVector | MutationKind::Manifold)
+        // Every mutation is implemented; kept so a future one can land before it works.
+        MutationKind::ALL.contains(&self)
     }
 }
 
@@ -124,11 +129,13 @@ pub fn make<'a>(
 ) -> Option<Box<dyn Mutation<PathState, PathContext<'a>>>> {
     match kind {
         MutationKind::Bidirectional => Some(Box::new(bidir::BidirectionalMutation)),
+        MutationKind::Lens => Some(Box::new(lens::LensPerturbation)),
+        MutationKind::Caustic => Some(Box::new(caustic::CausticPerturbation)),
+        MutationKind::MultiChain => Some(Box::new(multichain::MultiChainPerturbation)),
         MutationKind::HalfVector => Some(Box::new(halfvector::HalfVectorMutation::new(settings.halfvector))),
         MutationKind::Manifold => {
             Some(Box::new(ManifoldPerturbation::new(settings.lambda, settings.specular_threshold)))
         }
-        MutationKind::Lens | MutationKind::Caustic | MutationKind::MultiChain => None,
     }
 }
 

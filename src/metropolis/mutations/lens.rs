@@ -1,0 +1,97 @@
+//! Veach's lens perturbation (Veach 1997, §11.4.2; Mitsuba's `mut_lens.cpp`): move the image point of
+//! a path by a small film offset, retrace the camera's specular chain x_1 … x_{c−1} through the same
+//! Dirac lobes to a new non-specular y_c, and connect y_c to the unchanged rest of the path.
+//!
+//! | parameter | value | meaning |
+//! |---|---|---|
+//! | r1 | `perturb::FILM_R1_PIXELS` = 0.1 px | smallest film offset |
+//! | r2 | sqrt(`perturb::FILM_R2_AREA_FRACTION` · W · H / π) = sqrt(0.05 W H / π) px | largest offset |
+//! | offset density | ∝ 1/r on [r1, r2], uniform angle | symmetric, so it cancels in T(y→x)/T(x→y) |
+//!
+//! With a pinhole, d film / dω ∝ `camera.pdf_dir`, so T(y→x)/T(x→y) = D(x)/D(y) with
+//! D(p) = pdf_dir(p_0→p_1) · Π_{i=1..c} |cos θ_i| / d²(p_{i−1}, p_i) (Dirac convention).
+
+use super::perturb::{
+    camera_chain_density, connect_visible, first_non_delta, sample_film_offset, trace_from_camera,
+};
+use crate::geometry::Vec2;
+use crate::metropolis::chain::{Failure, Mutation, MutationStats, Proposal};
+use crate::metropolis::path_state::{PathContext, PathState};
+use crate::path::{Vertex, VertexKind};
+use crate::sampling::Sampler;
+use crate::scene::Scene;
+
+/// The lens perturbation (stateless: its parameters are the constants of `perturb`).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct LensPerturbation;
+
+impl LensPerturbation {
+    /// c, the first non-specular vertex after the camera, if the perturbation applies to `x`: either
+    /// the chain ends on a hittable emitter (c = k) or x_c and x_{c+1} can be joined by an edge.
+    pub fn applicable(scene: &Scene, x: &[Vertex], hide_emitters: bool) -> Option<usize> {
+        let n = x.len();
+        if n < 2 || (hide_emitters && n == 2) {
+            return None;
+        }
+        let c = first_non_delta(x, 1)?;
+        if c == n - 1 {
+            let end = &x[c];
+            return (end.light.is_some() && !end.is_delta_light(scene)).then_some(c);
+        }
+        (x[c].kind == VertexKind::Surface && x[c].connectible() && x[c + 1].connectible()).then_some(c)
+    }
+
+    /// The deterministic part of the move: the path of `current` re-seen through film position
+    /// `film`, with T(y→x)/T(x→y). Tests call it to retrace a proposal back to where it came from.
+    pub fn perturb_to(
+        &self,
+        ctx: &mut PathContext,
+        current: &PathState,
+        film: Vec2,
+    ) -> Result<Proposal<PathState>, Failure> {
+        let x = &current.vertices;
+        let n = x.len();
+        if n > ctx.max_vertices() {
+            return Err(Failure::NotApplicable);
+        }
+        let c = Self::applicable(ctx.scene, x, ctx.bdpt.hide_emitters).ok_or(Failure::NotApplicable)?;
+        let mut y = trace_from_camera(ctx, x, c, film)?;
+        if c < n - 1 {
+            if !y[c].connectible() {
+                return Err(Failure::Failed("not_connectible"));
+            }
+            if !connect_visible(ctx, &y[c], &x[c + 1]) {
+                return Err(Failure::Failed("occluded"));
+            }
+            y.extend_from_slice(&x[c + 1..]);
+        }
+        let scene = ctx.scene;
+        let density_y = camera_chain_density(scene, &y[..=c]);
+        let density_x = camera_chain_density(scene, &x[..=c]);
+        if !(density_y > 0.0 && density_y.is_finite()) {
+            return Err(Failure::Failed("zero_density"));
+        }
+        let state = PathState::new(scene, y).ok_or(Failure::Failed("no_contribution"))?;
+        Ok(Proposal { state, t_ratio: density_x / density_y })
+    }
+}
+
+impl<'a> Mutation<PathState, PathContext<'a>> for LensPerturbation {
+    fn name(&self) -> &'static str {
+        "lens"
+    }
+
+    fn propose(
+        &mut self,
+        current: &PathState,
+        ctx: &mut PathContext<'a>,
+        rng: &mut Sampler,
+        _stats: &mut MutationStats,
+    ) -> Result<Proposal<PathState>, Failure> {
+        if Self::applicable(ctx.scene, &current.vertices, ctx.bdpt.hide_emitters).is_none() {
+            return Err(Failure::NotApplicable);
+        }
+        let film = current.film + sample_film_offset(ctx.scene, rng);
+        self.perturb_to(ctx, current, film)
+    }
+}

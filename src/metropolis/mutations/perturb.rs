@@ -1,0 +1,193 @@
+//! What Veach's perturbations share (Veach 1997, §11.4.2–11.4.4): retracing a specular chain
+//! deterministically through the same-side Dirac lobes the old path used, the solid-angle-to-area
+//! factors that make the traced vertices' densities, and the 1/r-distributed radial offsets.
+//!
+//! Densities follow the Dirac convention of `path_state`: a step through a Dirac lobe is taken with
+//! probability 1 (the delta removed), so a chain traced from a direction of solid-angle density p_ω
+//! has the area density p_ω · Π |cos θ_hit| / d² over its traced vertices.
+
+use crate::bsdf::TransportMode;
+use crate::geometry::{ray_epsilon, Frame, Ray, Vec2, Vec3};
+use crate::metropolis::chain::Failure;
+use crate::metropolis::path_state::PathContext;
+use crate::path::{visible, Vertex, VertexKind};
+use crate::sampling::Sampler;
+use crate::scene::Scene;
+use crate::spectrum::Spectrum;
+
+/// Smallest film offset of the lens and multi-chain perturbations, in pixels (Veach's r1).
+pub const FILM_R1_PIXELS: f64 = 0.1;
+/// Largest film offset as a fraction of the image area: r2 = sqrt(fraction · W · H / π), i.e. a
+/// disc covering 5% of the image (Veach's and Mitsuba's default).
+pub const FILM_R2_AREA_FRACTION: f64 = 0.05;
+
+/// (r1, r2) of the film offset in pixels for this scene's film.
+pub fn film_radius_range(scene: &Scene) -> (f64, f64) {
+    let area = (scene.film.width * scene.film.height) as f64;
+    let r2 = (FILM_R2_AREA_FRACTION * area / std::f64::consts::PI).sqrt();
+    (FILM_R1_PIXELS, r2.max(FILM_R1_PIXELS * 2.0))
+}
+
+/// A value in [lo, hi] with density ∝ 1/value: hi · exp(−ln(hi/lo) u).
+pub fn sample_reciprocal(lo: f64, hi: f64, u: f64) -> f64 {
+    hi * (-(hi / lo).ln() * u).exp()
+}
+
+/// A film offset of length r ∝ 1/r on [r1, r2] at a uniform angle. Its density in film area,
+/// 1 / (2π r² ln(r2/r1)), depends only on |offset|, so the move is symmetric and cancels.
+pub fn sample_film_offset(scene: &Scene, rng: &mut Sampler) -> Vec2 {
+    let (r1, r2) = film_radius_range(scene);
+    let r = sample_reciprocal(r1, r2, rng.next_f64());
+    let phi = 2.0 * std::f64::consts::PI * rng.next_f64();
+    Vec2::new((r * phi.cos()) as f32, (r * phi.sin()) as f32)
+}
+
+/// `w` turned by the polar angle θ at azimuth φ around itself.
+pub fn rotate_direction(w: Vec3, theta: f64, phi: f64) -> Vec3 {
+    let (st, ct) = (theta.sin(), theta.cos());
+    let local = Vec3::new((st * phi.cos()) as f32, (st * phi.sin()) as f32, ct as f32);
+    Frame::from_normal(w).to_world(local).normalize_or_zero()
+}
+
+/// A direction within θ ∈ [θ1, θ2] of `w`, θ ∝ 1/θ and uniform azimuth; returns it with θ. Its
+/// solid-angle density, 1 / (2π ln(θ2/θ1) θ sin θ), is a function of the angle only.
+pub fn perturb_direction(w: Vec3, theta1: f64, theta2: f64, rng: &mut Sampler) -> (Vec3, f64) {
+    let theta = sample_reciprocal(theta1, theta2, rng.next_f64());
+    let phi = 2.0 * std::f64::consts::PI * rng.next_f64();
+    (rotate_direction(w, theta, phi), theta)
+}
+
+/// The angle between two unit directions, accurate for tiny angles (atan2 of |a × b| and a · b).
+pub fn angle_between(a: Vec3, b: Vec3) -> f64 {
+    let (a, b) = (a.as_dvec3(), b.as_dvec3());
+    a.cross(b).length().atan2(a.dot(b))
+}
+
+/// Solid-angle density of `perturb_direction` at angle θ with range [θ1, θ2] (0 outside).
+pub fn angular_density(theta: f64, theta1: f64, theta2: f64) -> f64 {
+    if !(theta >= theta1 && theta <= theta2 && theta2 > theta1) {
+        return 0.0;
+    }
+    1.0 / (2.0 * std::f64::consts::PI * (theta2 / theta1).ln() * theta.sin() * theta)
+}
+
+/// A ray leaving vertex `v` along `dir` on the exact line through `v.p`, skipping the surface it
+/// leaves by starting at t = ε rather than by moving the origin off the surface (`spawn_ray`). A
+/// moved origin shifts the line by ε = 1e-4 scene units, and a focusing specular chain (a glass ball
+/// imaging a small light onto the floor) magnifies that shift, so retracing a chain would not land
+/// back where it started; starting on the line keeps the retrace exact up to f32 rounding.
+pub fn ray_from(v: &Vertex, dir: Vec3) -> Ray {
+    let tmin = if v.is_surface() { ray_epsilon(v.p) } else { 0.0 };
+    Ray { origin: v.p, dir, tmin, tmax: f32::INFINITY }
+}
+
+/// Π over j ≥ 1 of the solid-angle-to-area factor |cos| / d² at `chain[j]` seen from `chain[j−1]`
+/// (an environment endpoint stays in solid angle): the density of a traced chain per unit p_ω.
+pub fn conversion_product(scene: &Scene, chain: &[Vertex]) -> f64 {
+    chain.windows(2).map(|w| w[0].convert_density(1.0, &w[1], scene) as f64).product()
+}
+
+/// The same product for the chain `chain` read from its last vertex to its first.
+pub fn conversion_product_reversed(scene: &Scene, chain: &[Vertex]) -> f64 {
+    chain.windows(2).map(|w| w[1].convert_density(1.0, &w[0], scene) as f64).product()
+}
+
+/// The first index ≥ `from` whose vertex is not `delta`.
+pub fn first_non_delta(vertices: &[Vertex], from: usize) -> Option<usize> {
+    (from..vertices.len()).find(|&i| !vertices[i].delta)
+}
+
+/// Traces a specular chain again: `old` is the old chain in tracing order (`old[0]` the vertex the
+/// ray leaves, `old[1..]` the vertices to replace, all but the last `delta`). Each new hit under an
+/// old `delta` vertex continues through its BSDF's Dirac lobe on the side the old path used and is
+/// marked `delta`; the hit under the last old vertex ends the chain, not `delta`. If that last old
+/// vertex is an environment endpoint the chain must escape; if `ends_on_emitter`, the last hit must
+/// be an emitter. Returns the new vertices replacing `old[1..]`, in tracing order.
+pub fn trace_specular_chain(
+    ctx: &mut PathContext,
+    old: &[Vertex],
+    mut ray: Ray,
+    mode: TransportMode,
+    ends_on_emitter: bool,
+) -> Result<Vec<Vertex>, Failure> {
+    let scene = ctx.scene;
+    let m = old.len() - 1;
+    let mut out = Vec::with_capacity(m);
+    for j in 1..=m {
+        let end = &old[j];
+        ctx.counters.rays += 1;
+        let Some(si) = scene.intersect(&ray) else {
+            if j == m && end.kind == VertexKind::InfiniteLight {
+                let light = end.light.ok_or(Failure::Failed("miss"))?;
+                out.push(Vertex::infinite(scene, light, ray.origin, ray.dir));
+                return Ok(out);
+            }
+            return Err(Failure::Failed("miss"));
+        };
+        if j == m && end.kind == VertexKind::InfiniteLight {
+            return Err(Failure::Failed("blocked_environment"));
+        }
+        let mut v = Vertex::surface(scene, &si, Spectrum::ONE);
+        if j == m {
+            if ends_on_emitter && v.light.is_none() {
+                return Err(Failure::Failed("missed_emitter"));
+            }
+            out.push(v);
+            return Ok(out);
+        }
+        if !end.delta {
+            return Err(Failure::Failed("chain_structure"));
+        }
+        let reflect = end.reflects(end.direction_to(&old[j - 1]), end.direction_to(&old[j + 1]));
+        let Some(wo) = v.dirac_direction(scene, si.wi, reflect, mode) else {
+            return Err(Failure::Failed("no_dirac_lobe"));
+        };
+        v.delta = true;
+        ray = ray_from(&v, wo);
+        out.push(v);
+    }
+    Ok(out)
+}
+
+/// True if nothing blocks the new edge between `a` and `b` (counted as one ray).
+pub fn connect_visible(ctx: &mut PathContext, a: &Vertex, b: &Vertex) -> bool {
+    ctx.counters.rays += 1;
+    visible(ctx.scene, a, b)
+}
+
+/// Radians per pixel across the image (horizontal field of view / width), used to size angular
+/// perturbations so they move the image by about as much as the lens perturbation does.
+pub fn radians_per_pixel(scene: &Scene) -> f64 {
+    let fov = 2.0 * (scene.camera.tan_half.x as f64).atan();
+    fov / scene.film.width.max(1) as f64
+}
+
+/// The camera-side specular chain of the lens and multi-chain perturbations: the primary ray through
+/// `film`, traced through the old `x_1 … x_{c−1}` (all `delta`) to a new `y_c`. Returns
+/// `[x_0, y_1, …, y_c]`.
+pub fn trace_from_camera(
+    ctx: &mut PathContext,
+    old: &[Vertex],
+    c: usize,
+    film: Vec2,
+) -> Result<Vec<Vertex>, Failure> {
+    let scene = ctx.scene;
+    let (w, h) = (scene.film.width as f32, scene.film.height as f32);
+    if !(film.x >= 0.0 && film.y >= 0.0 && film.x < w && film.y < h) {
+        return Err(Failure::Failed("outside_image"));
+    }
+    let ray = scene.camera.generate_ray(film);
+    let ends_on_emitter = c == old.len() - 1;
+    let traced = trace_specular_chain(ctx, &old[..=c], ray, TransportMode::Radiance, ends_on_emitter)?;
+    let mut out = Vec::with_capacity(c + 1);
+    out.push(old[0]);
+    out.extend(traced);
+    Ok(out)
+}
+
+/// D(p) of the lens perturbation for the camera-side chain `p_0 … p_c`: the primary direction's
+/// density, proportional to d film / dω, times the chain's area conversion.
+pub fn camera_chain_density(scene: &Scene, chain: &[Vertex]) -> f64 {
+    let dir = chain[0].direction_to(&chain[1]);
+    scene.camera.pdf_dir(dir) as f64 * conversion_product(scene, chain)
+}

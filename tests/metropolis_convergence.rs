@@ -1,0 +1,134 @@
+//! Every Metropolis integrator of this build (PSSMLT and the path-space mixtures MLT, MEMLT, HSLT,
+//! HSLT+MLT, as `IntegratorKind::available_kinds` lists them) converges to BDPT on the bundled scenes.
+//!
+//! MLT noise is correlated between pixels and between mutations, and each run's image is scaled by its
+//! own seeding estimate of the normalisation b, so the error bar of a block is the spread of that block
+//! between independent runs (different seeds), which holds every source of error. With R runs the
+//! block statistic t = (mean − ref) / √(s²/R + var_ref) follows Student's t with R − 1 degrees of
+//! freedom; the test bounds the mean of t² over the blocks (expected (R−1)/(R−3)) by that expectation
+//! plus four standard deviations of a mean of that many independent t² terms: a false alarm is rare,
+//! while a bias of a few standard errors per block, or a factor in the image, fails.
+
+use hslt::cli::{load_scene, render_scene};
+use hslt::image::ImageBuf;
+use hslt::integrators::IntegratorKind;
+use std::path::Path;
+
+const RUNS: u64 = 6;
+/// 4×4 blocks of a 32×32 image.
+const BLOCK: usize = 8;
+
+fn blocks(img: &ImageBuf) -> Vec<f64> {
+    let (nx, ny) = (img.width / BLOCK, img.height / BLOCK);
+    let mut out = vec![0.0; nx * ny];
+    for y in 0..ny * BLOCK {
+        for x in 0..nx * BLOCK {
+            let p = img.pixel(x, y);
+            let v = (0..3).map(|c| p[c.min(img.channels - 1)] as f64).sum::<f64>() / 3.0;
+            out[(y / BLOCK) * nx + x / BLOCK] += v / (BLOCK * BLOCK) as f64;
+        }
+    }
+    out
+}
+
+/// Mean and variance of the mean of each block over runs.
+fn block_stats(runs: &[Vec<f64>]) -> Vec<(f64, f64)> {
+    let r = runs.len() as f64;
+    (0..runs[0].len())
+        .map(|b| {
+            let mean = runs.iter().map(|run| run[b]).sum::<f64>() / r;
+            let var = runs.iter().map(|run| (run[b] - mean).powi(2)).sum::<f64>() / (r - 1.0);
+            (mean, var / r)
+        })
+        .collect()
+}
+
+fn metropolis_kinds() -> Vec<IntegratorKind> {
+    IntegratorKind::available_kinds()
+        .into_iter()
+        .filter(|k| !matches!(k, IntegratorKind::Path | IntegratorKind::Bdpt))
+        .collect()
+}
+
+/// Renders `RUNS` runs of every Metropolis integrator at `mutations` per pixel and `RUNS` BDPT runs at
+/// `bdpt_spp`, and checks each integrator's blocks against BDPT's.
+fn converges_to_bdpt(rel: &str, defines: &[(&str, &str)], mutations: u32, bdpt_spp: u32) {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(rel);
+    let mut all: Vec<(&str, &str)> = vec![("resx", "32"), ("resy", "32")];
+    all.extend_from_slice(defines);
+    let scene = load_scene(&path, &all).unwrap_or_else(|e| panic!("{rel}: {e:#}"));
+    let render = |kind: IntegratorKind, spp: u32, seed: u64| {
+        let (img, stats) = render_scene(&scene, kind, spp, seed);
+        assert_eq!(stats.invalid_samples, 0, "{rel}: {} produced NaN/Inf", kind.name());
+        assert!(
+            img.data.iter().all(|v| v.is_finite() && *v >= 0.0),
+            "{rel}: {} non-finite pixel",
+            kind.name()
+        );
+        blocks(&img)
+    };
+    let reference =
+        block_stats(&(1..=RUNS).map(|s| render(IntegratorKind::Bdpt, bdpt_spp, 100 + s)).collect::<Vec<_>>());
+    let dof = (RUNS - 1) as f64;
+    let expected = dof / (dof - 2.0);
+    // E[t⁴] = 3ν²/((ν−2)(ν−4)) for ν = 5.
+    let sd_t2 = (3.0 * dof * dof / ((dof - 2.0) * (dof - 4.0)) - expected * expected).sqrt();
+    let n_blocks = reference.len() as f64;
+    let bound = expected + 4.0 * sd_t2 / n_blocks.sqrt();
+    let mut failures = Vec::new();
+    for kind in metropolis_kinds() {
+        let ours = block_stats(&(1..=RUNS).map(|s| render(kind, mutations, s)).collect::<Vec<_>>());
+        let mut t2 = 0.0;
+        let (mut sum_ours, mut sum_ref) = (0.0, 0.0);
+        for ((m, v), (rm, rv)) in ours.iter().zip(&reference) {
+            // A block no run reached carries no information (dark corner): skip it on both sides.
+            if *v + *rv <= 0.0 {
+                continue;
+            }
+            t2 += (m - rm).powi(2) / (v + rv);
+            sum_ours += m;
+            sum_ref += rm;
+        }
+        let mean_t2 = t2 / n_blocks;
+        println!(
+            "{rel}: {:<9} mean t² {mean_t2:.2} (bound {bound:.2}), image mean {:.4} vs BDPT {:.4}",
+            kind.name(),
+            sum_ours / n_blocks,
+            sum_ref / n_blocks
+        );
+        if !(mean_t2 <= bound) {
+            failures.push(format!("{} mean t² {mean_t2:.2} > {bound:.2}", kind.name()));
+        }
+    }
+    assert!(failures.is_empty(), "{rel}: {}", failures.join("; "));
+}
+
+#[test]
+fn cornell_box() {
+    converges_to_bdpt("scenes/cornell-box/scene.xml", &[], 64, 256);
+}
+
+#[test]
+fn materials() {
+    converges_to_bdpt("scenes/materials/scene.xml", &[], 64, 256);
+}
+
+#[test]
+fn caustic() {
+    converges_to_bdpt("scenes/caustic/scene.xml", &[], 128, 512);
+}
+
+#[test]
+fn fig15_rough_glass_cube() {
+    converges_to_bdpt("scenes/fig15/scene.xml", &[], 64, 256);
+}
+
+#[test]
+fn jewelry() {
+    converges_to_bdpt("scenes/jewelry/scene.xml", &[("max_depth", "6")], 64, 256);
+}
+
+#[test]
+fn caustic_seen_in_a_mirror() {
+    converges_to_bdpt("scenes/mirror-caustic/scene.xml", &[], 128, 512);
+}
