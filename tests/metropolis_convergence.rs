@@ -8,13 +8,24 @@
 //! freedom; the test bounds the mean of t² over the blocks (expected (R−1)/(R−3)) by that expectation
 //! plus four standard deviations of a mean of that many independent t² terms: a false alarm is rare,
 //! while a bias of a few standard errors per block, or a factor in the image, fails.
+//!
+//! Not here: fig17 (a spot light through nested rough glass): with the bidirectional mutation's 3%
+//! acceptance there, dim floor blocks are visited too rarely for six short runs to give an honest
+//! spread (see tests/mlt_bidir.rs, where its comparison is an ignored measurement). The furnaces and
+//! other closed-form scenes are in tests/analytic.rs.
 
 use hslt::cli::{load_scene, render_scene};
 use hslt::image::ImageBuf;
-use hslt::integrators::IntegratorKind;
+use hslt::integrators::{make_with, DepthLimits, IntegratorKind, IntegratorSettings};
+use hslt::render::RenderOptions;
 use std::path::Path;
+use std::sync::atomic::AtomicBool;
 
 const RUNS: u64 = 6;
+/// Seeding pass of every Metropolis run. The normalisation b of a path-space run comes from it alone
+/// and scales every block of that run alike; on the caustic scenes the default pass (16 384 paths at
+/// 32×32) leaves b with a skewed spread that six runs do not capture.
+const SEED_PATHS: usize = 1 << 17;
 /// 4×4 blocks of a 32×32 image.
 const BLOCK: usize = 8;
 
@@ -57,8 +68,17 @@ fn converges_to_bdpt(rel: &str, defines: &[(&str, &str)], mutations: u32, bdpt_s
     let mut all: Vec<(&str, &str)> = vec![("resx", "32"), ("resy", "32")];
     all.extend_from_slice(defines);
     let scene = load_scene(&path, &all).unwrap_or_else(|e| panic!("{rel}: {e:#}"));
+    let limits = DepthLimits { max_depth: scene.integrator.max_depth, rr_depth: scene.integrator.rr_depth };
+    let mut settings = IntegratorSettings::new(limits, scene.integrator.hide_emitters);
+    settings.pssmlt.seed_paths = Some(SEED_PATHS);
     let render = |kind: IntegratorKind, spp: u32, seed: u64| {
-        let (img, stats) = render_scene(&scene, kind, spp, seed);
+        let (img, stats) = if kind == IntegratorKind::Bdpt {
+            render_scene(&scene, kind, spp, seed)
+        } else {
+            let options = RenderOptions { spp: Some(spp), seed, ..Default::default() };
+            let out = make_with(kind, &settings).render(&scene, &options, &AtomicBool::new(false));
+            (out.film.to_image(), out.stats)
+        };
         assert_eq!(stats.invalid_samples, 0, "{rel}: {} produced NaN/Inf", kind.name());
         assert!(
             img.data.iter().all(|v| v.is_finite() && *v >= 0.0),
