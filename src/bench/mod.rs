@@ -2,6 +2,10 @@
 //! same threads — build time, structure memory and Mrays/s for coherent, incoherent, shadow and
 //! manifold-corrector-style ray bundles; also Embree's packet/stream/single paths and wrapper overhead.
 
+mod mutations;
+
+pub use mutations::bench_hslt;
+
 use crate::accel::embree::PacketHint;
 use crate::accel::{BvhScene, EmbreeScene, Hit};
 use crate::geometry::{Frame, Ray, TriangleMesh, Vec2, Vec3};

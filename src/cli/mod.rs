@@ -66,6 +66,20 @@ pub enum BenchCommand {
     Rays(BenchRaysArgs),
     /// Integrators side by side on one scene: samples/s, rays/s and rays per sample, one run each.
     Integrators(BenchIntegratorsArgs),
+    /// HSLT mutations per second, with the Newton corrector's rays batched and cast one at a time.
+    Hslt(BenchHsltArgs),
+}
+
+#[derive(Args, Debug)]
+pub struct BenchHsltArgs {
+    #[command(flatten)]
+    pub scene: SceneArgs,
+    /// Stationary paths to propose from (one HSLT proposal each per pass).
+    #[arg(long, default_value_t = 20_000)]
+    pub proposals: usize,
+    /// Passes per mode, alternating; the median is reported.
+    #[arg(long, default_value_t = 3)]
+    pub repeats: usize,
 }
 
 #[derive(Args, Debug)]
@@ -212,6 +226,7 @@ pub fn run(cli: Cli) -> anyhow::Result<i32> {
         Command::Bench(BenchCommand::Pt(args)) => run_bench(args),
         Command::Bench(BenchCommand::Rays(args)) => run_bench_rays(args),
         Command::Bench(BenchCommand::Integrators(args)) => run_bench_integrators(args),
+        Command::Bench(BenchCommand::Hslt(args)) => run_bench_hslt(args),
         Command::GenerateAssets(args) => assets::run(args),
         Command::Compare(args) => report::run_compare(args),
         Command::Reference(args) => report::run_reference(args),
@@ -559,6 +574,12 @@ fn run_bench_integrators(args: BenchIntegratorsArgs) -> anyhow::Result<i32> {
             secs / base
         );
     }
+    Ok(0)
+}
+
+fn run_bench_hslt(args: BenchHsltArgs) -> anyhow::Result<i32> {
+    let scene = load(&args.scene, AccelKind::Embree)?;
+    print!("{}", crate::bench::bench_hslt(&scene, args.proposals, args.repeats)?);
     Ok(0)
 }
 

@@ -21,6 +21,9 @@ pub struct WalkSettings {
     pub precision_floor: f64,
     /// Give up once the step fraction falls below this.
     pub min_step: f64,
+    /// Cast each corrector pass's rays (one per candidate step size) as one batched query; false casts
+    /// them one at a time (`hslt bench hslt` measures both).
+    pub batch_rays: bool,
 }
 
 impl Default for WalkSettings {
@@ -31,6 +34,7 @@ impl Default for WalkSettings {
             relative_tolerance: 1e-3,
             precision_floor: 2e-6,
             min_step: 1e-5,
+            batch_rays: true,
         }
     }
 }
@@ -129,6 +133,7 @@ pub fn walk_counting_rays(
             &current,
             &fractions,
             |i, fraction| (geometry[i].p + geometry[i].displacement(dx[i - 1] * fraction)).as_vec3(),
+            settings.batch_rays,
             rays,
         );
         let mut accepted = false;
@@ -173,15 +178,16 @@ pub fn corrector_pass(
     fractions: &[f64],
     predicted: impl Fn(usize, f64) -> Vec3,
 ) -> Vec<Result<Vec<Vertex>, CorrectorFailure>> {
-    corrector_pass_counting_rays(scene, current, fractions, predicted, &mut 0)
+    corrector_pass_counting_rays(scene, current, fractions, predicted, true, &mut 0)
 }
 
-/// `corrector_pass`, adding the rays it casts to `rays`.
+/// `corrector_pass`, adding the rays it casts to `rays`; `batched` = false casts them one by one.
 pub fn corrector_pass_counting_rays(
     scene: &Scene,
     current: &[Vertex],
     fractions: &[f64],
     predicted: impl Fn(usize, f64) -> Vec3,
+    batched: bool,
     rays_cast: &mut u64,
 ) -> Vec<Result<Vec<Vertex>, CorrectorFailure>> {
     let k = current.len() - 1;
@@ -208,7 +214,13 @@ pub fn corrector_pass_counting_rays(
         }
         hits.clear();
         hits.resize(rays.len(), None);
-        scene.accel().intersect_batch(&rays, &mut hits);
+        if batched {
+            scene.accel().intersect_batch(&rays, &mut hits);
+        } else {
+            for (ray, hit) in rays.iter().zip(hits.iter_mut()) {
+                *hit = scene.accel().intersect(ray);
+            }
+        }
         *rays_cast += rays.len() as u64;
         for ((ray, hit), &c) in rays.iter().zip(&hits).zip(&owners) {
             let result = match hit.as_ref().and_then(|h| SurfaceInteraction::from_hit(scene, ray, h)) {
