@@ -2,6 +2,9 @@
 //! Mitsuba 0.6's `mut_bidir`): delete a sub-path of the current path, regrow new vertices from both kept
 //! ends by random walks and join them with one connection edge. The transition density sums, for the
 //! same kept ends, over every split of the new vertices between the two walks that could have made y.
+//! When the emitter end is regenerated, the split with no light-side vertex is an eye walk that hits
+//! an emitter itself (no connection edge): without it, paths whose emitter follows a Dirac vertex (a
+//! light seen through glass or in a mirror) could never be proposed, since no connection can end there.
 
 use crate::bsdf::{BsdfContext, TransportMode};
 use crate::geometry::{offset_origin, Ray, Vec2};
@@ -102,19 +105,26 @@ pub fn transition_density(
     {
         return 0.0;
     }
-    let s_lo = usize::from(suffix_empty);
-    if added - 1 < s_lo {
+    if added < 2 && suffix_empty {
         return 0.0;
     }
     let kept_environment = !suffix_empty && c == n - 1 && to[n - 1].kind == VertexKind::InfiniteLight;
     let pdfs = PathView::whole(to).dirac_pdfs(scene);
-    let p_split = 1.0 / (added - s_lo) as f64;
+    let p_split = 1.0 / added as f64;
     let mut sum = 0.0;
-    for s in s_lo..added {
+    for s in 0..added {
         if kept_environment && s >= 1 {
             continue;
         }
         let t = added - 1 - s;
+        if suffix_empty && s == 0 {
+            // The eye walk itself ended on the emitter (no connection edge).
+            if hit_emitter(scene, &to[n - 1]) {
+                let eye: f64 = pdfs.from_camera[a + 1..n].iter().map(|&p| p as f64).product();
+                sum += p_split * eye;
+            }
+            continue;
+        }
         let (eye_end, light_end) = (&to[a + t], &to[a + t + 1]);
         let camera_to_environment =
             eye_end.kind == VertexKind::Camera && light_end.kind == VertexKind::InfiniteLight;
@@ -126,6 +136,12 @@ pub fn transition_density(
         sum += p_split * eye * light;
     }
     p_length * p_deleted * p_position * sum
+}
+
+/// Whether an eye walk may end on `v` by hitting it: a surface that emits (not a Dirac light, which
+/// rays cannot hit, nor an environment, whose choice among several would need its own density).
+fn hit_emitter(scene: &Scene, v: &Vertex) -> bool {
+    v.kind == VertexKind::Surface && v.light.is_some() && !v.is_delta_light(scene)
 }
 
 /// Whether a kept vertex scattered through a Dirac lobe. A point or spot light endpoint is flagged
@@ -243,12 +259,12 @@ impl<'a> Mutation<PathState, PathContext<'a>> for BidirectionalMutation {
         if suffix_empty && x[k].is_delta_light(scene) {
             return Err(Failure::Failed("dirac_light"));
         }
-        let s_lo = usize::from(suffix_empty);
-        if added - 1 < s_lo {
+        // With the emitter regenerated, s = 0 means the eye walk must hit an emitter itself: the only
+        // way to build paths whose light end follows a Dirac vertex (a light seen through glass).
+        if suffix_empty && added < 2 {
             return Err(Failure::Failed("no_split"));
         }
-        let splits = added - s_lo;
-        let s = s_lo + ((rng.next_f64() * splits as f64) as usize).min(splits - 1);
+        let s = ((rng.next_f64() * added as f64) as usize).min(added - 1);
         let t = added - 1 - s;
         if !suffix_empty && b == k && x[k].kind == VertexKind::InfiniteLight && s >= 1 {
             return Err(Failure::Failed("unsupported"));
@@ -264,6 +280,13 @@ impl<'a> Mutation<PathState, PathContext<'a>> for BidirectionalMutation {
                 kept_vertex_ray(scene, &x[a], &x[a - 1], TransportMode::Radiance, rng)?
             };
             walk_exactly(ctx, &mut eye, ray, TransportMode::Radiance, t, rng)?;
+        }
+
+        if suffix_empty && s == 0 {
+            if !hit_emitter(scene, &eye[eye.len() - 1]) {
+                return Err(Failure::Failed("missed_emitter"));
+            }
+            return finish(ctx, current, eye, (a, deleted, added), stats);
         }
 
         // The light side is held from the emitter inwards, as the walk grows it.
@@ -313,21 +336,33 @@ impl<'a> Mutation<PathState, PathContext<'a>> for BidirectionalMutation {
         }
         let mut y = eye;
         y.extend(light.iter().rev());
-        if y.len() > ctx.max_vertices() || y.len() != k_new + 1 {
-            return Err(Failure::Failed("too_long"));
-        }
-        let state = PathState::new(scene, y).ok_or(Failure::Failed("zero_contribution"))?;
-
-        let forward = transition_density(scene, ctx.bdpt, k, &state.vertices, a, deleted, added);
-        let reverse = transition_density(scene, ctx.bdpt, k_new, x, a, added, deleted);
-        let t_ratio = reverse / forward;
-        if !(forward > 0.0 && forward.is_finite() && reverse.is_finite() && t_ratio.is_finite()) {
-            return Err(Failure::Failed("degenerate_density"));
-        }
-        stats.add_sum("deleted_vertices", (deleted - 1) as f64);
-        stats.add_sum("added_vertices", (added - 1) as f64);
-        Ok(Proposal { state, t_ratio })
+        finish(ctx, current, y, (a, deleted, added), stats)
     }
+}
+
+/// Evaluates the proposed path y and the ratio of the two transition densities.
+fn finish(
+    ctx: &PathContext,
+    current: &PathState,
+    y: Vec<Vertex>,
+    (a, deleted, added): (usize, usize, usize),
+    stats: &mut MutationStats,
+) -> Result<Proposal<PathState>, Failure> {
+    let (scene, x) = (ctx.scene, &current.vertices);
+    let (k, k_new) = (x.len() - 1, x.len() - 1 + added - deleted);
+    if y.len() > ctx.max_vertices() || y.len() != k_new + 1 {
+        return Err(Failure::Failed("too_long"));
+    }
+    let state = PathState::new(scene, y).ok_or(Failure::Failed("zero_contribution"))?;
+    let forward = transition_density(scene, ctx.bdpt, k, &state.vertices, a, deleted, added);
+    let reverse = transition_density(scene, ctx.bdpt, k_new, x, a, added, deleted);
+    let t_ratio = reverse / forward;
+    if !(forward > 0.0 && forward.is_finite() && reverse.is_finite() && t_ratio.is_finite()) {
+        return Err(Failure::Failed("degenerate_density"));
+    }
+    stats.add_sum("deleted_vertices", (deleted - 1) as f64);
+    stats.add_sum("added_vertices", (added - 1) as f64);
+    Ok(Proposal { state, t_ratio })
 }
 
 #[cfg(test)]
