@@ -8,6 +8,10 @@ use std::sync::atomic::AtomicBool;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
+/// The two tests below measure wall time against their own snapshot times; run side by side they take
+/// each other's cores (the test harness runs a file's tests in parallel), so they take turns.
+static TIMED: Mutex<()> = Mutex::new(());
+
 fn scene() -> hslt::scene::Scene {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/cornell-box/scene.xml");
     hslt::cli::load_scene(&path, &[("resx", "32"), ("resy", "24")]).unwrap()
@@ -15,6 +19,7 @@ fn scene() -> hslt::scene::Scene {
 
 #[test]
 fn snapshots_arrive_after_their_times_and_match_a_render_of_that_many_samples() {
+    let _turn = TIMED.lock().unwrap_or_else(|e| e.into_inner());
     let scene = scene();
     let limits = DepthLimits { max_depth: scene.integrator.max_depth, rr_depth: scene.integrator.rr_depth };
     let integrator = integrators::make(IntegratorKind::Path, limits, false);
@@ -83,6 +88,7 @@ fn first_sample_continues_the_streams() {
 /// mutation counts and an acceptance rate, and the last snapshot is close to the final image.
 #[test]
 fn metropolis_chains_take_snapshots_between_rounds() {
+    let _turn = TIMED.lock().unwrap_or_else(|e| e.into_inner());
     let scene = scene();
     let limits = DepthLimits { max_depth: scene.integrator.max_depth, rr_depth: scene.integrator.rr_depth };
     let mut settings = integrators::IntegratorSettings::new(limits, false);

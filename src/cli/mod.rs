@@ -142,13 +142,15 @@ pub struct RenderArgs {
     /// BDPT: multiple-importance heuristic.
     #[arg(long, default_value = "power", value_parser = ["power", "balance"])]
     pub mis: String,
-    /// PSSMLT: independent BDPT samples in the seeding pass that estimates the normalisation and starts
-    /// the chains (default: 4 per pixel, between 16384 and 1048576).
+    /// Metropolis: independent BDPT samples in the seeding pass that estimates the normalisation and
+    /// starts the chains (default: PSSMLT 4 per pixel, path-space methods 16 per pixel; at least 16384
+    /// and 65536, at most 1048576).
     #[arg(long, value_name = "N")]
     pub seed_paths: Option<usize>,
-    /// PSSMLT: number of Markov chains (fixed, so the image does not depend on the thread count).
-    #[arg(long, value_name = "N", default_value_t = 64)]
-    pub chains: usize,
+    /// Metropolis: number of Markov chains, fixed so the image does not depend on the thread count
+    /// (default: 64 for PSSMLT, 1024 for the path-space methods).
+    #[arg(long, value_name = "N")]
+    pub chains: Option<usize>,
     /// Path-space MLT (mlt, memlt, hslt, hslt+mlt): the mutation mixture with selection weights, e.g.
     /// bidir:1,lens:1,caustic:1,multichain:1 (known: bidir, lens, caustic, multichain, manifold, hslt).
     #[arg(long, value_name = "LIST")]
@@ -299,14 +301,17 @@ fn run_render(args: RenderArgs) -> anyhow::Result<i32> {
             bail!("--bdpt-strategies writes EXR layers: every output must end in .exr");
         }
     }
-    if args.seed_paths == Some(0) || args.chains == 0 {
+    if args.seed_paths == Some(0) || args.chains == Some(0) {
         bail!("--seed-paths and --chains must be at least 1");
     }
     if !(0.0..=1.0).contains(&args.p_large) {
         bail!("--p-large must be between 0 and 1");
     }
     settings.pssmlt.seed_paths = args.seed_paths;
-    settings.pssmlt.chains = args.chains;
+    if let Some(chains) = args.chains {
+        settings.pssmlt.chains = chains;
+        settings.path_chains = Some(chains);
+    }
     settings.pssmlt.p_large = args.p_large;
     if let Some(list) = &args.mutations {
         if !kind.is_path_space() {

@@ -211,8 +211,10 @@ pub struct IntegratorSettings {
     /// BDPT: MIS heuristic.
     pub mis: crate::path::MisHeuristic,
     /// PSSMLT: seeding pass size, chain count, large-step probability, target function. Path-space
-    /// methods share its seeding pass size, chain count and target.
+    /// methods share its seeding pass size (when set) and target.
     pub pssmlt: crate::metropolis::PssmltSettings,
+    /// Path-space methods: the number of chains (`None`: `metropolis::mlt::DEFAULT_PATH_CHAINS`).
+    pub path_chains: Option<usize>,
     /// Path-space methods: the mutation mixture (`None`: the technique's default) and the parameters
     /// of the individual mutations.
     pub mutations: Option<Vec<(MutationKind, f64)>>,
@@ -227,6 +229,7 @@ impl IntegratorSettings {
             bdpt_strategies: None,
             mis: crate::path::MisHeuristic::Power,
             pssmlt: crate::metropolis::PssmltSettings::default(),
+            path_chains: None,
             mutations: None,
             mutation: MutationSettings::default(),
         }
@@ -261,7 +264,7 @@ pub fn make_with(kind: IntegratorKind, settings: &IntegratorSettings) -> Box<dyn
                 settings.mutations.clone().unwrap_or_else(|| kind.default_mutations()),
             );
             mlt.seed_paths = settings.pssmlt.seed_paths;
-            mlt.chains = settings.pssmlt.chains;
+            mlt.chains = settings.path_chains.unwrap_or(crate::metropolis::mlt::DEFAULT_PATH_CHAINS);
             mlt.target = settings.pssmlt.target;
             mlt.mutation = settings.mutation.clone();
             Box::new(PathMlt::new(kind.name(), bdpt, mlt))

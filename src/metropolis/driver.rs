@@ -11,9 +11,13 @@ use std::time::Instant;
 
 /// Mutations between checks of the clock and the cancel flag.
 const CHECK_EVERY: u64 = 256;
-/// Most mutations one chain runs per round: bounds the buffered splats (memory) and the delay before
-/// a snapshot or the end of the render.
+/// Most mutations one chain runs per round: bounds the delay before a snapshot or the end of the render.
 const ROUND_MUTATIONS: u64 = 1 << 14;
+/// Most mutations all chains run per round together: bounds the buffered splats (memory) however
+/// many chains there are (64 chains get the full `ROUND_MUTATIONS` each).
+const ROUND_TOTAL: u64 = 1 << 20;
+/// Fewest mutations per chain and round, so many chains still amortise a round's overhead.
+const ROUND_MIN: u64 = 256;
 
 /// A chain state that can say what it adds to the film.
 pub trait FilmState: ChainState {
@@ -134,6 +138,7 @@ pub fn drive(
     let mut clock = SnapshotClock::new(options);
     let mut mutations = 0u64;
     let mut buffers: Vec<Vec<Splat>> = chains.iter().map(|_| Vec::new()).collect();
+    let per_round = (ROUND_TOTAL / chains.len().max(1) as u64).clamp(ROUND_MIN, ROUND_MUTATIONS);
     loop {
         if remaining.iter().all(|&r| r == 0) || cancel.load(Ordering::Relaxed) {
             break;
@@ -153,7 +158,7 @@ pub fn drive(
             .zip(remaining.par_iter())
             .map(|((chain, buffer), &left)| {
                 buffer.clear();
-                chain.advance(left.min(ROUND_MUTATIONS), round_deadline, cancel, buffer)
+                chain.advance(left.min(per_round), round_deadline, cancel, buffer)
             })
             .collect();
         for ((left, d), buffer) in remaining.iter_mut().zip(&done).zip(&buffers) {

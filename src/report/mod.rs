@@ -63,7 +63,8 @@ fn csv_field(s: &str) -> String {
 pub fn acceptance_rate(stats: &[(String, String)]) -> Option<f64> {
     stats
         .iter()
-        .filter(|(k, _)| k.ends_with("acceptance_rate"))
+        // Snapshots carry `acceptance_rate`; a finished Metropolis render's metadata `hslt.mlt.acceptance`.
+        .filter(|(k, _)| k.ends_with("acceptance_rate") || k == "hslt.mlt.acceptance")
         .find_map(|(_, v)| v.trim().parse::<f64>().ok().filter(|a| (0.0..=1.0).contains(a)))
 }
 
