@@ -3,7 +3,7 @@
 //! that run only this mutation reproduce BDPT, and stiff input is rejected and counted, never NaN.
 
 use hslt::cli::load_scene;
-use hslt::integrators::{make_with, Bdpt, DepthLimits, IntegratorKind, IntegratorSettings};
+use hslt::integrators::{make_with, DepthLimits, IntegratorKind, IntegratorSettings};
 use hslt::manifold::{path_constraints, path_etas, path_geometry};
 use hslt::metropolis::mutations::halfvector::{applicable, HalfVectorMutation, HalfVectorParams};
 use hslt::metropolis::{
@@ -17,26 +17,17 @@ use hslt::spectrum::luminance;
 use std::path::Path;
 use std::sync::atomic::AtomicBool;
 
+mod common;
+
+use common::mlt::{bdpt, blocks, discrepancy, mean_se};
+
 fn scene(rel: &str, defines: &[(&str, &str)]) -> Scene {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(rel);
     load_scene(&path, defines).unwrap_or_else(|e| panic!("{rel}: {e:#}"))
 }
 
-fn bdpt(scene: &Scene) -> Bdpt {
-    let limits = DepthLimits { max_depth: scene.integrator.max_depth, rr_depth: scene.integrator.rr_depth };
-    Bdpt::new(limits, scene.integrator.hide_emitters)
-}
-
 fn target(state: &PathState) -> f64 {
     luminance(state.contribution) as f64
-}
-
-/// Mean and standard error of the mean of independent values.
-fn mean_se(values: &[f64]) -> (f64, f64) {
-    let n = values.len() as f64;
-    let mean = values.iter().sum::<f64>() / n;
-    let var = values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1.0);
-    (mean, (var / n).sqrt())
 }
 
 fn ln_det_j(scene: &Scene, path: &[hslt::path::Vertex]) -> f64 {
@@ -205,36 +196,6 @@ fn meta<'a>(out: &'a hslt::integrators::RenderOutput, key: &str) -> Option<&'a s
 
 fn meta_u64(out: &hslt::integrators::RenderOutput, key: &str) -> u64 {
     meta(out, key).map_or(0, |v| v.parse().unwrap())
-}
-
-/// Block means (4 × 4 pixels, channel-averaged) of an image.
-fn blocks(img: &hslt::image::ImageBuf) -> Vec<f64> {
-    let (bw, nx, ny) = (4, img.width / 4, img.height / 4);
-    let mut out = vec![0.0; nx * ny];
-    for y in 0..ny * bw {
-        for x in 0..nx * bw {
-            let p = img.pixel(x, y);
-            out[(y / bw) * nx + x / bw] += (p[0] + p[1] + p[2]) as f64 / (3.0 * (bw * bw) as f64);
-        }
-    }
-    out
-}
-
-/// Σ_j (ā_j − b̄_j)² / Σ_j (s²_a,j / K_a + s²_b,j / K_b) over blocks j: about 1 when both sets of
-/// independent runs have the same expectation, larger with a bias.
-fn discrepancy(a: &[Vec<f64>], b: &[Vec<f64>]) -> f64 {
-    let stats = |runs: &[Vec<f64>], j: usize| {
-        let col: Vec<f64> = runs.iter().map(|r| r[j]).collect();
-        let (m, se) = mean_se(&col);
-        (m, se * se)
-    };
-    let (mut num, mut den) = (0.0, 0.0);
-    for j in 0..a[0].len() {
-        let ((ma, va), (mb, vb)) = (stats(a, j), stats(b, j));
-        num += (ma - mb).powi(2);
-        den += va + vb;
-    }
-    num / den
 }
 
 fn hslt_only(scene: &Scene, chains: usize, params: HalfVectorParams) -> PathMlt {

@@ -5,7 +5,7 @@
 use glam::{DMat2, DVec2};
 use hslt::cli::load_scene;
 use hslt::image::ImageBuf;
-use hslt::integrators::{Bdpt, DepthLimits, Integrator};
+use hslt::integrators::Integrator;
 use hslt::manifold::{
     direction_per_half_vector, half_vector_constraint, path_constraints, path_etas, path_geometry, walk,
     LocalGeometry, WalkSettings,
@@ -20,21 +20,13 @@ use hslt::scene::Scene;
 use std::path::Path;
 use std::sync::atomic::AtomicBool;
 
+mod common;
+
+use common::mlt::{bdpt, mean_se};
+
 fn scene(rel: &str, defines: &[(&str, &str)]) -> Scene {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(rel);
     load_scene(&path, defines).unwrap_or_else(|e| panic!("{rel}: {e:#}"))
-}
-
-fn bdpt(scene: &Scene) -> Bdpt {
-    let limits = DepthLimits { max_depth: scene.integrator.max_depth, rr_depth: scene.integrator.rr_depth };
-    Bdpt::new(limits, scene.integrator.hide_emitters)
-}
-
-fn mean_se(values: &[f64]) -> (f64, f64) {
-    let n = values.len() as f64;
-    let mean = values.iter().sum::<f64>() / n;
-    let var = values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1.0);
-    (mean, (var / n).sqrt())
 }
 
 /// At a Dirac vertex the half-vector constraint's block towards the next vertex, C = ∂h/∂x_{i+1}, and

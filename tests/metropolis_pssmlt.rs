@@ -7,7 +7,6 @@
 //! seeds) or independent chains, which contains every source of error including the normalisation b.
 
 use hslt::cli::load_scene;
-use hslt::image::ImageBuf;
 use hslt::integrators::{make_with, DepthLimits, IntegratorKind, IntegratorSettings, RenderOutput};
 use hslt::metropolis::{
     Chain, ChainState, Failure, Mutation, MutationStats, Proposal, PssSampler, PssmltSettings,
@@ -19,6 +18,10 @@ use hslt::scene::Scene;
 use hslt::spectrum::Spectrum;
 use std::path::Path;
 use std::sync::atomic::AtomicBool;
+
+mod common;
+
+use common::mlt::{blocks, discrepancy, image_mean, mean_se};
 
 fn scene(rel: &str, defines: &[(&str, &str)]) -> Scene {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(rel);
@@ -35,18 +38,6 @@ fn render(scene: &Scene, kind: IntegratorKind, spp: u32, seed: u64, pssmlt: Pssm
 
 fn meta<'a>(out: &'a RenderOutput, key: &str) -> Option<&'a str> {
     out.metadata.iter().find(|(k, _)| k == key).map(|(_, v)| v.as_str())
-}
-
-fn image_mean(img: &ImageBuf) -> f64 {
-    img.data.iter().map(|&v| v as f64).sum::<f64>() / img.data.len() as f64
-}
-
-/// Mean and standard error of the mean of independent values.
-fn mean_se(values: &[f64]) -> (f64, f64) {
-    let n = values.len() as f64;
-    let mean = values.iter().sum::<f64>() / n;
-    let var = values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1.0);
-    (mean, (var / n).sqrt())
 }
 
 /// Circular distance on [0, 1).
@@ -303,36 +294,6 @@ fn inside_sphere_over_independent_seeds() {
     assert!((mean - 1.0).abs() <= 6.0 * se + 1e-4, "mean {mean:.5} ± {se:.5}, expected 1");
     // The spread must be plausible too: a run-to-run error above 2% would mean a broken chain.
     assert!(se < 0.02, "run-to-run standard error {se}");
-}
-
-/// Block means (4 × 4 pixels, channel-averaged) of an image.
-fn blocks(img: &ImageBuf) -> Vec<f64> {
-    let (bw, nx, ny) = (4, img.width / 4, img.height / 4);
-    let mut out = vec![0.0; nx * ny];
-    for y in 0..ny * bw {
-        for x in 0..nx * bw {
-            let p = img.pixel(x, y);
-            out[(y / bw) * nx + x / bw] += (p[0] + p[1] + p[2]) as f64 / (3.0 * (bw * bw) as f64);
-        }
-    }
-    out
-}
-
-/// Σ_j (ā_j − b̄_j)² / Σ_j (s²_a,j / K_a + s²_b,j / K_b) over blocks j: about 1 when both sets of
-/// independent runs have the same expectation, larger with a bias.
-fn discrepancy(a: &[Vec<f64>], b: &[Vec<f64>]) -> f64 {
-    let stats = |runs: &[Vec<f64>], j: usize| {
-        let col: Vec<f64> = runs.iter().map(|r| r[j]).collect();
-        let (m, se) = mean_se(&col);
-        (m, se * se)
-    };
-    let (mut num, mut den) = (0.0, 0.0);
-    for j in 0..a[0].len() {
-        let ((ma, va), (mb, vb)) = (stats(a, j), stats(b, j));
-        num += (ma - mb).powi(2);
-        den += va + vb;
-    }
-    num / den
 }
 
 #[test]

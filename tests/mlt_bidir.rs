@@ -7,8 +7,7 @@
 //! independent runs (different seeds), never the spread of pixels within one image.
 
 use hslt::cli::load_scene;
-use hslt::image::ImageBuf;
-use hslt::integrators::{Bdpt, DepthLimits, Integrator, RenderOutput, TiledRenderer};
+use hslt::integrators::{Integrator, RenderOutput, TiledRenderer};
 use hslt::metropolis::mutations::bidir::{transition_density_between, BidirectionalMutation};
 use hslt::metropolis::{
     Chain, Failure, MltSettings, Mutation, MutationKind, MutationStats, PathContext, PathMlt, PathSeeds,
@@ -23,6 +22,10 @@ use std::path::Path;
 use std::sync::atomic::AtomicBool;
 use std::time::Instant;
 
+mod common;
+
+use common::mlt::{bdpt, blocks, discrepancy, image_mean, mean_se};
+
 fn scene(rel: &str, defines: &[(&str, &str)]) -> Scene {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(rel);
     load_scene(&path, defines).unwrap_or_else(|e| panic!("{rel}: {e:#}"))
@@ -30,19 +33,6 @@ fn scene(rel: &str, defines: &[(&str, &str)]) -> Scene {
 
 fn small_scene(rel: &str) -> Scene {
     scene(rel, &[("resx", "32"), ("resy", "32")])
-}
-
-fn bdpt(scene: &Scene) -> Bdpt {
-    let limits = DepthLimits { max_depth: scene.integrator.max_depth, rr_depth: scene.integrator.rr_depth };
-    Bdpt::new(limits, scene.integrator.hide_emitters)
-}
-
-/// Mean and standard error of the mean of independent values.
-fn mean_se(values: &[f64]) -> (f64, f64) {
-    let n = values.len() as f64;
-    let mean = values.iter().sum::<f64>() / n;
-    let var = values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1.0);
-    (mean, (var / n).sqrt())
 }
 
 fn target(state: &PathState) -> f64 {
@@ -256,40 +246,6 @@ fn proposals_satisfy_detailed_balance_on_stationary_paths() {
             assert!(m.abs() <= 4.0 * se + 1e-6, "{rel}: length change {d}: {m:.4} ± {se:.4}");
         }
     }
-}
-
-fn image_mean(img: &ImageBuf) -> f64 {
-    img.data.iter().map(|&v| v as f64).sum::<f64>() / img.data.len() as f64
-}
-
-/// Block means (4 × 4 pixels, channel-averaged) of an image.
-fn blocks(img: &ImageBuf) -> Vec<f64> {
-    let (bw, nx, ny) = (4, img.width / 4, img.height / 4);
-    let mut out = vec![0.0; nx * ny];
-    for y in 0..ny * bw {
-        for x in 0..nx * bw {
-            let p = img.pixel(x, y);
-            out[(y / bw) * nx + x / bw] += (p[0] + p[1] + p[2]) as f64 / (3.0 * (bw * bw) as f64);
-        }
-    }
-    out
-}
-
-/// Σ_j (ā_j − b̄_j)² / Σ_j (s²_a,j / K_a + s²_b,j / K_b) over blocks j, the bars means over independent
-/// runs and s² their spread: about 1 when both sets have the same expectation, larger with a bias.
-fn discrepancy(a: &[Vec<f64>], b: &[Vec<f64>]) -> f64 {
-    let stats = |runs: &[Vec<f64>], j: usize| {
-        let col: Vec<f64> = runs.iter().map(|r| r[j]).collect();
-        let (m, se) = mean_se(&col);
-        (m, se * se)
-    };
-    let (mut num, mut den) = (0.0, 0.0);
-    for j in 0..a[0].len() {
-        let ((ma, va), (mb, vb)) = (stats(a, j), stats(b, j));
-        num += (ma - mb).powi(2);
-        den += va + vb;
-    }
-    num / den
 }
 
 fn options(spp: u32, seed: u64) -> RenderOptions {

@@ -24,6 +24,10 @@ use hslt::scene::Scene;
 use std::path::Path;
 use std::sync::atomic::AtomicBool;
 
+mod common;
+
+use common::mlt::{bdpt, discrepancy, image_mean, mean_se};
+
 const CAUSTIC: &str = "scenes/caustic/scene.xml";
 const CORNELL: &str = "scenes/cornell-box/scene.xml";
 const MATERIALS: &str = "scenes/materials/scene.xml";
@@ -69,11 +73,6 @@ fn scene(rel: &str) -> Scene {
     load_scene(&path, &[("resx", "32"), ("resy", "32")]).unwrap_or_else(|e| panic!("{rel}: {e:#}"))
 }
 
-fn bdpt(scene: &Scene) -> Bdpt {
-    let limits = DepthLimits { max_depth: scene.integrator.max_depth, rr_depth: scene.integrator.rr_depth };
-    Bdpt::new(limits, scene.integrator.hide_emitters)
-}
-
 fn seeds(scene: &Scene, bdpt: &Bdpt, seed: u64, n: usize) -> PathSeeds {
     let seeds = PathSeeds::run(scene, bdpt, seed, n, &AtomicBool::new(false));
     assert!(seeds.b > 0.0 && seeds.candidates() > 0);
@@ -87,14 +86,6 @@ fn mutation<'a>(kind: MutationKind, scene: &Scene) -> Box<dyn Mutation<PathState
 
 fn target(state: &PathState) -> f64 {
     TargetFunction::Luminance.eval(state.contribution)
-}
-
-/// Mean and standard error of the mean of independent values.
-fn mean_se(values: &[f64]) -> (f64, f64) {
-    let n = values.len() as f64;
-    let mean = values.iter().sum::<f64>() / n;
-    let var = values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1.0);
-    (mean, (var / n).sqrt())
 }
 
 /// What the detailed-balance check measured for one mutation on one scene.
@@ -712,10 +703,6 @@ fn degenerate_input_is_rejected_and_counted_never_nan() {
     }
 }
 
-fn image_mean(img: &ImageBuf) -> f64 {
-    img.data.iter().map(|&v| v as f64).sum::<f64>() / img.data.len() as f64
-}
-
 /// Block means (8 × 8 pixels, channel-averaged): coarse, because chains that run only one
 /// perturbation cannot leave the path shape they started in, so their images are blotchy.
 fn blocks(img: &ImageBuf) -> Vec<f64> {
@@ -728,23 +715,6 @@ fn blocks(img: &ImageBuf) -> Vec<f64> {
         }
     }
     out
-}
-
-/// Σ_j (ā_j − b̄_j)² / Σ_j (s²_a,j / K_a + s²_b,j / K_b) over blocks j, from independent runs: about 1
-/// when both sets have the same expectation, larger with a bias.
-fn discrepancy(a: &[Vec<f64>], b: &[Vec<f64>]) -> f64 {
-    let stats = |runs: &[Vec<f64>], j: usize| {
-        let col: Vec<f64> = runs.iter().map(|r| r[j]).collect();
-        let (m, se) = mean_se(&col);
-        (m, se * se)
-    };
-    let (mut num, mut den) = (0.0, 0.0);
-    for j in 0..a[0].len() {
-        let ((ma, va), (mb, vb)) = (stats(a, j), stats(b, j));
-        num += (ma - mb).powi(2);
-        den += va + vb;
-    }
-    num / den
 }
 
 fn meta(out: &hslt::integrators::RenderOutput, key: &str) -> String {

@@ -152,3 +152,4 @@ pub fn render_runs(
     }
     (mean, var_img)
 }
+pub mod mlt;
