@@ -111,24 +111,7 @@ impl<'a> PathView<'a> {
 
     /// Both densities of every vertex, computed from scratch on this path.
     pub fn pdfs(&self, scene: &Scene) -> PathPdfs {
-        let n = self.len();
-        let mut from_camera = vec![0.0; n];
-        let mut from_light = vec![0.0; n];
-        if n == 0 {
-            return PathPdfs { from_camera, from_light };
-        }
-        from_camera[0] = 1.0;
-        for (i, pdf) in from_camera.iter_mut().enumerate().skip(1) {
-            let prev = (i >= 2).then(|| self.get(i - 2));
-            *pdf = Self::density(scene, prev, self.get(i - 1), self.get(i), TransportMode::Radiance);
-        }
-        from_light[n - 1] = self.get(n - 1).pdf_light_origin(scene);
-        for i in (0..n - 1).rev() {
-            let prev = (i + 2 < n).then(|| self.get(i + 2));
-            from_light[i] =
-                Self::density(scene, prev, self.get(i + 1), self.get(i), TransportMode::Importance);
-        }
-        PathPdfs { from_camera, from_light }
+        self.densities(scene, |prev, cur, next, mode| Self::density(scene, prev, cur, next, mode))
     }
 
     /// Both densities of every vertex as `pdfs` computes them, but with the Dirac convention of
@@ -137,18 +120,27 @@ impl<'a> PathView<'a> {
     /// of the BSDF density, which is zero there. Every product of these densities then carries the same
     /// deltas as f(X) evaluated with the lobe coefficients, so ratios of f to them are meaningful.
     pub fn dirac_pdfs(&self, scene: &Scene) -> PathPdfs {
+        self.densities(scene, |prev, cur, next, mode| match prev {
+            Some(prev) if cur.delta => cur
+                .dirac_lobe(scene, cur.direction_to(prev), cur.direction_to(next), mode)
+                .map_or(0.0, |(_, prob)| cur.convert_density(prob, next, scene)),
+            _ => Self::density(scene, prev, cur, next, mode),
+        })
+    }
+
+    /// One pass in each direction: `step(prev, cur, next, mode)` is the area density at `next` of
+    /// sampling it from `cur`, reached from `prev`.
+    fn densities(
+        &self,
+        scene: &Scene,
+        step: impl Fn(Option<&Vertex>, &Vertex, &Vertex, TransportMode) -> f32,
+    ) -> PathPdfs {
         let n = self.len();
         let mut from_camera = vec![0.0; n];
         let mut from_light = vec![0.0; n];
         if n == 0 {
             return PathPdfs { from_camera, from_light };
         }
-        let step = |prev: Option<&Vertex>, cur: &Vertex, next: &Vertex, mode: TransportMode| match prev {
-            Some(prev) if cur.delta => cur
-                .dirac_lobe(scene, cur.direction_to(prev), cur.direction_to(next), mode)
-                .map_or(0.0, |(_, prob)| cur.convert_density(prob, next, scene)),
-            _ => Self::density(scene, prev, cur, next, mode),
-        };
         from_camera[0] = 1.0;
         for (i, pdf) in from_camera.iter_mut().enumerate().skip(1) {
             let prev = (i >= 2).then(|| self.get(i - 2));

@@ -9,7 +9,7 @@ pub mod walk;
 
 pub use eval::{mis_weight, MisHeuristic, PathPdfs, PathView};
 
-use crate::bsdf::{Bsdf, BsdfContext, TransportMode};
+use crate::bsdf::{Bsdf, BsdfContext, BsdfSample, TransportMode};
 use crate::geometry::{Frame, Vec2, Vec3};
 use crate::lights::{AreaLight, EmissionSample, Light, SurfacePoint};
 use crate::scene::{Scene, SurfaceDerivatives, SurfaceInteraction};
@@ -314,20 +314,28 @@ impl Vertex {
         wo: Vec3,
         mode: TransportMode,
     ) -> Option<(Spectrum, f32)> {
+        let bs = self.dirac_sample(scene, wi, self.reflects(wi, wo), mode)?;
+        let f = bs.weight * (bs.pdf / bs.wo.z.abs());
+        let f = f * crate::bsdf::shading_normal_correction(mode, wi, wo, self.ng, self.frame.n);
+        Some((f, bs.pdf))
+    }
+
+    /// The BSDF sample of this vertex's Dirac lobe on the `reflect` side of `wi` (local frame), if any.
+    fn dirac_sample(
+        &self,
+        scene: &Scene,
+        wi: Vec3,
+        reflect: bool,
+        mode: TransportMode,
+    ) -> Option<BsdfSample> {
         let bsdf = self.bsdf(scene)?;
         let ctx = BsdfContext { mode, uv: self.uv };
-        let (wi_local, wo_local) = (self.frame.to_local(wi), self.frame.to_local(wo));
-        let reflect = wi_local.z * wo_local.z > 0.0;
+        let wi_local = self.frame.to_local(wi);
         // The lobe choice number is opaque to us; its two extremes select the first and the last lobe.
-        for u_lobe in [0.0, 1.0 - f32::EPSILON] {
-            let Some(bs) = bsdf.sample(&ctx, wi_local, u_lobe, Vec2::splat(0.5)) else { continue };
-            if bs.lobe.is_delta() && (bs.wo.z * wi_local.z > 0.0) == reflect && bs.wo.z != 0.0 {
-                let f = bs.weight * (bs.pdf / bs.wo.z.abs());
-                let f = f * crate::bsdf::shading_normal_correction(mode, wi, wo, self.ng, self.frame.n);
-                return Some((f, bs.pdf));
-            }
-        }
-        None
+        [0.0, 1.0 - f32::EPSILON].into_iter().find_map(|u_lobe| {
+            let bs = bsdf.sample(&ctx, wi_local, u_lobe, Vec2::splat(0.5))?;
+            (bs.lobe.is_delta() && (bs.wo.z * wi_local.z > 0.0) == reflect && bs.wo.z != 0.0).then_some(bs)
+        })
     }
 
     /// True if the path scatters at this vertex by reflection (both directions on one side of the
@@ -346,16 +354,8 @@ impl Vertex {
         reflect: bool,
         mode: TransportMode,
     ) -> Option<Vec3> {
-        let bsdf = self.bsdf(scene)?;
-        let ctx = BsdfContext { mode, uv: self.uv };
-        let wi_local = self.frame.to_local(wi);
-        for u_lobe in [0.0, 1.0 - f32::EPSILON] {
-            let Some(bs) = bsdf.sample(&ctx, wi_local, u_lobe, Vec2::splat(0.5)) else { continue };
-            if bs.lobe.is_delta() && (bs.wo.z * wi_local.z > 0.0) == reflect && bs.wo.z != 0.0 {
-                return Some(self.frame.to_world(bs.wo).normalize_or_zero());
-            }
-        }
-        None
+        let bs = self.dirac_sample(scene, wi, reflect, mode)?;
+        Some(self.frame.to_world(bs.wo).normalize_or_zero())
     }
 
     /// This vertex as an area light's surface point.
