@@ -50,6 +50,17 @@ pub enum WalkError {
     DidNotConverge,
 }
 
+impl WalkError {
+    /// The short name mutations count this failure under in their statistics.
+    pub fn reason(self) -> &'static str {
+        match self {
+            WalkError::Singular { .. } => "singular",
+            WalkError::Constraint(_) => "degenerate",
+            WalkError::DidNotConverge => "did_not_converge",
+        }
+    }
+}
+
 /// Why one corrector pass at one step size was refused (the walk then halves the step).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum CorrectorFailure {

@@ -8,7 +8,7 @@ use super::super::chain::{Failure, Mutation, MutationStats, Proposal};
 use super::super::path_state::{PathContext, PathState};
 use crate::manifold::{
     bandwidth_shares, invert_block, path_constraints, path_etas, path_geometry, step_sizes,
-    walk_counting_rays, LocalGeometry, StepSizes, WalkError, WalkSettings,
+    walk_counting_rays, LocalGeometry, StepSizes, WalkSettings,
 };
 use crate::path::{PathView, ScatterClass, Vertex, VertexKind};
 use crate::sampling::Sampler;
@@ -118,14 +118,6 @@ fn pixel_footprint(scene: &Scene, film: glam::Vec2, x1: &LocalGeometry) -> (DVec
     ((hit(1.0, 0.0) - hit(-1.0, 0.0)) * 0.5, (hit(0.0, 1.0) - hit(0.0, -1.0)) * 0.5)
 }
 
-fn walk_reason(e: WalkError) -> &'static str {
-    match e {
-        WalkError::Singular { .. } => "singular",
-        WalkError::Constraint(_) => "degenerate",
-        WalkError::DidNotConverge => "did_not_converge",
-    }
-}
-
 /// The half-vector mutation.
 pub struct HalfVectorMutation {
     pub params: HalfVectorParams,
@@ -228,7 +220,7 @@ impl<'a> Mutation<PathState, PathContext<'a>> for HalfVectorMutation {
             &self.params.walk,
             &mut ctx.counters.rays,
         )
-        .map_err(|e| Failure::Failed(walk_reason(e)))?;
+        .map_err(|e| Failure::Failed(e.reason()))?;
         stats.add_sum("newton_iterations", forward.iterations as f64);
         stats.add_sum("converged_walks", 1.0);
         // x_1 moved, so the image point did: a path leaving the film is outside the state space.

@@ -23,7 +23,7 @@ use glam::{DVec2, DVec3};
 use crate::geometry::{offset_origin, Ray, Vec2, Vec3};
 use crate::manifold::{
     direction_per_half_vector, half_vector, half_vector_constraint, path_constraints, path_etas,
-    path_geometry, scatter_with_half_vector, walk_counting_rays, LocalGeometry, WalkError, WalkSettings,
+    path_geometry, scatter_with_half_vector, walk_counting_rays, LocalGeometry, WalkSettings,
 };
 use crate::metropolis::chain::{Failure, Mutation, MutationStats, Proposal};
 use crate::metropolis::path_state::{PathContext, PathState};
@@ -122,14 +122,6 @@ fn gaussian_pair(rng: &mut Sampler) -> (f64, f64) {
     (r * phi.cos(), r * phi.sin())
 }
 
-fn walk_failure(e: WalkError) -> Failure {
-    Failure::Failed(match e {
-        WalkError::Singular { .. } => "singular",
-        WalkError::Constraint(_) => "degenerate",
-        WalkError::DidNotConverge => "did_not_converge",
-    })
-}
-
 impl Mutation<PathState, PathContext<'_>> for ManifoldPerturbation {
     fn name(&self) -> &'static str {
         "manifold"
@@ -208,8 +200,8 @@ impl Mutation<PathState, PathContext<'_>> for ManifoldPerturbation {
             let sub_eta = &eta[b..=c];
             let targets = &held_h[b + 1..c];
             let rays = &mut ctx.counters.rays;
-            let forward =
-                walk_counting_rays(scene, &sub, sub_eta, targets, &self.walk, rays).map_err(walk_failure)?;
+            let forward = walk_counting_rays(scene, &sub, sub_eta, targets, &self.walk, rays)
+                .map_err(|e| Failure::Failed(e.reason()))?;
             stats.add_sum("newton_iterations", forward.iterations as f64);
             let mut back_start = forward.path.clone();
             back_start[0] = x[b];
