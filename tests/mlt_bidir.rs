@@ -9,6 +9,7 @@
 use hslt::cli::load_scene;
 use hslt::integrators::{Integrator, RenderOutput, TiledRenderer};
 use hslt::metropolis::mutations::bidir::{transition_density_between, BidirectionalMutation};
+use hslt::metropolis::mutations::largestep::{self, LargeStep};
 use hslt::metropolis::{
     Chain, Failure, MltSettings, Mutation, MutationKind, MutationStats, PathContext, PathMlt, PathSeeds,
     PathState, TargetFunction, WeightedMutation,
@@ -253,7 +254,11 @@ fn options(spp: u32, seed: u64) -> RenderOptions {
 }
 
 fn bidir_mlt(scene: &Scene, chains: usize, seed_paths: Option<usize>) -> PathMlt {
-    let mut settings = MltSettings::for_technique(vec![(MutationKind::Bidirectional, 1.0)]);
+    mixture_mlt(scene, &[MutationKind::Bidirectional], chains, seed_paths)
+}
+
+fn mixture_mlt(scene: &Scene, kinds: &[MutationKind], chains: usize, seed_paths: Option<usize>) -> PathMlt {
+    let mut settings = MltSettings::for_technique(kinds.iter().map(|&k| (k, 1.0)).collect());
     settings.chains = chains;
     settings.seed_paths = seed_paths;
     PathMlt::new("mlt", bdpt(scene), settings)
@@ -299,7 +304,9 @@ fn shape(runs: &[Vec<f64>]) -> Vec<Vec<f64>> {
         .collect()
 }
 
-/// Independent bidirectional-only MLT runs against independent BDPT runs of the same scene.
+const BIDIR: &[MutationKind] = &[MutationKind::Bidirectional];
+
+/// Independent MLT runs of one mutation mixture against independent BDPT runs of the same scene.
 ///
 /// The image's total is b, fixed by the seeding pass (BDPT samples) before any mutation runs; how the
 /// mutation distributes it is its whole effect. So the distribution is compared on each run's blocks
@@ -307,6 +314,7 @@ fn shape(runs: &[Vec<f64>]) -> Vec<Vec<f64>> {
 /// and the total separately. Moving 10% of the energy between the image's halves must fail the same
 /// statistic, which shows the runs can see a distortion of that size.
 fn compare_with_bdpt(
+    kinds: &[MutationKind],
     rel: &str,
     chains: usize,
     seed_paths: usize,
@@ -316,7 +324,7 @@ fn compare_with_bdpt(
 ) {
     let scene = small_scene(rel);
     let start = Instant::now();
-    let mlt = bidir_mlt(&scene, chains, Some(seed_paths));
+    let mlt = mixture_mlt(&scene, kinds, chains, Some(seed_paths));
     let mut acceptance = Vec::new();
     let mlt_blocks: Vec<Vec<f64>> = (0..mlt_runs)
         .map(|seed| {
@@ -348,7 +356,7 @@ fn compare_with_bdpt(
     let ((fm, fm_se), (fb, fb_se)) = (flux(&mlt_blocks), flux(&bdpt_blocks));
     let (acc, _) = mean_se(&acceptance);
     eprintln!(
-        "{rel}: bidir MLT {mlt_runs} runs × {mlt_spp} mutations/pixel in {mlt_seconds:.1} s, acceptance \
+        "{rel}: {kinds:?} MLT {mlt_runs} runs × {mlt_spp} mutations/pixel in {mlt_seconds:.1} s, acceptance \
          {acc:.3}; shape mean z² {d:.3} (top half ×1.1: {d_distorted:.3}); flux {fm:.3} ± {fm_se:.3} \
          vs BDPT {fb:.3} ± {fb_se:.3}; variance-weighted block discrepancy {:.3}, of the shapes {:.3}",
         discrepancy(&mlt_blocks, &bdpt_blocks),
@@ -364,12 +372,12 @@ fn compare_with_bdpt(
 
 #[test]
 fn bidirectional_chains_reproduce_bdpt_on_the_cornell_box() {
-    compare_with_bdpt("scenes/cornell-box/scene.xml", 64, 16_384, 12, 128, 64);
+    compare_with_bdpt(BIDIR, "scenes/cornell-box/scene.xml", 64, 16_384, 12, 128, 64);
 }
 
 #[test]
 fn bidirectional_chains_reproduce_bdpt_on_the_caustic_scene() {
-    compare_with_bdpt("scenes/caustic/scene.xml", 256, 1 << 18, 12, 320, 256);
+    compare_with_bdpt(BIDIR, "scenes/caustic/scene.xml", 256, 1 << 18, 12, 320, 256);
 }
 
 #[test]
@@ -509,5 +517,57 @@ fn dirac_density_pass_reproduces_bdpt_on_specular_paths() {
 #[test]
 #[ignore]
 fn bidirectional_chains_reproduce_bdpt_under_a_spot_light() {
-    compare_with_bdpt("scenes/fig17/scene.xml", 256, 1 << 16, 12, 1024, 128);
+    compare_with_bdpt(BIDIR, "scenes/fig17/scene.xml", 256, 1 << 16, 12, 1024, 128);
+}
+
+#[test]
+fn large_step_proposals_are_unbiased_samples_of_the_path_integral() {
+    // The large step draws y from the fixed density p it reports (`largestep::density`), whatever the
+    // current path, so luminance(f(y)) / p(y), counting every failed proposal as 0, is an unbiased
+    // estimate of ∫ luminance(f) dμ: the seeding pass's b. A density with a wrong factor, a missing
+    // split or a sampler that drops some paths without saying so moves the mean; 5 standard errors
+    // of the two independent estimates bound it. 2^23 proposals resolve 0.5% on the Cornell box: the
+    // density once missed the s = 0 term of paths whose emitter was sampled on the light, which put
+    // this estimate 0.5% (5 standard errors) above b. Each proposal's ratio is p(x)/p(y) exactly.
+    for (rel, proposals, seed_paths) in
+        [("scenes/cornell-box/scene.xml", 1 << 23, 1 << 17), ("scenes/caustic/scene.xml", 1 << 19, 1 << 14)]
+    {
+        let scene = small_scene(rel);
+        let bdpt = bdpt(&scene);
+        let seeds = PathSeeds::run(&scene, &bdpt, 5, 1 << 16, &AtomicBool::new(false));
+        let samples: Vec<f64> = {
+            let mut ctx = PathContext::new(&scene, &bdpt);
+            let mut rng = Sampler::new(11, 0, 0);
+            let mut stats = MutationStats::default();
+            let x = seeds.draw(&scene, &bdpt, 5, 0.5).expect("a seed path");
+            (0..proposals)
+                .map(|_| match LargeStep.propose(&x, &mut ctx, &mut rng, &mut stats) {
+                    Ok(p) => {
+                        let forward = largestep::density(&scene, &bdpt, &p.state.vertices);
+                        let reverse = largestep::density(&scene, &bdpt, &x.vertices);
+                        assert!((p.t_ratio - reverse / forward).abs() <= 1e-12 * p.t_ratio, "{rel}: ratio");
+                        luminance(p.state.contribution) as f64 / forward
+                    }
+                    Err(_) => 0.0,
+                })
+                .collect()
+        };
+        let (mean, se) = mean_se(&samples);
+        // b's standard error from 8 independent seeding passes.
+        let bs: Vec<f64> = (0..8)
+            .map(|i| PathSeeds::run(&scene, &bdpt, 100 + i, seed_paths, &AtomicBool::new(false)).b)
+            .collect();
+        let (b, b_se) = mean_se(&bs);
+        eprintln!("{bs:?}");
+        eprintln!("{rel}: large-step estimate {mean:.5} ± {se:.5}, seeding b {b:.5} ± {b_se:.5}");
+        let tolerance = 5.0 * (se * se + b_se * b_se).sqrt();
+        assert!((mean - b).abs() <= tolerance, "{rel}: large step {mean:.5} vs b {b:.5} (± {tolerance:.5})");
+        assert!(se < 0.05 * b, "{rel}: too noisy to judge ({se:.5} of {b:.5})");
+    }
+}
+
+#[test]
+fn large_step_chains_reproduce_bdpt_on_the_caustic_scene() {
+    // An independence sampler reaches every path BDPT does, so it alone must reproduce BDPT's image.
+    compare_with_bdpt(&[MutationKind::LargeStep], "scenes/caustic/scene.xml", 256, 1 << 16, 12, 128, 256);
 }

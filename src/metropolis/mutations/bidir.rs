@@ -13,7 +13,7 @@ use crate::integrators::Bdpt;
 use crate::metropolis::chain::{Failure, Mutation, MutationStats, Proposal};
 use crate::metropolis::path_state::{PathContext, PathState};
 use crate::path::walk::{self, WalkLimits};
-use crate::path::{visible, PathView, Vertex, VertexKind};
+use crate::path::{visible, PathPdfs, PathView, Vertex, VertexKind};
 use crate::sampling::Sampler;
 use crate::scene::Scene;
 use crate::spectrum::Spectrum;
@@ -26,7 +26,7 @@ pub struct BidirectionalMutation;
 
 /// Edge counts the mutation may propose: a 1-edge path (the camera sees the emitter) lies outside the
 /// integrated space when emitters are hidden.
-fn edge_range(bdpt: &Bdpt) -> (usize, usize) {
+pub(super) fn edge_range(bdpt: &Bdpt) -> (usize, usize) {
     let k_min = if bdpt.hide_emitters { 2 } else { 1 };
     let k_max = bdpt.max_path_vertices().saturating_sub(1).min(MAX_EDGES);
     (k_min, k_max)
@@ -37,7 +37,7 @@ fn two_tailed_weight(centre: usize, value: usize) -> f64 {
 }
 
 /// P(value) for the two-tailed geometric distribution ∝ 2^−|value − centre| on [lo, hi].
-fn two_tailed_pmf(centre: usize, lo: usize, hi: usize, value: usize) -> f64 {
+pub(super) fn two_tailed_pmf(centre: usize, lo: usize, hi: usize, value: usize) -> f64 {
     if lo > hi || value < lo || value > hi {
         return 0.0;
     }
@@ -45,7 +45,7 @@ fn two_tailed_pmf(centre: usize, lo: usize, hi: usize, value: usize) -> f64 {
     two_tailed_weight(centre, value) / total
 }
 
-fn sample_two_tailed(centre: usize, lo: usize, hi: usize, u: f64) -> Option<usize> {
+pub(super) fn sample_two_tailed(centre: usize, lo: usize, hi: usize, u: f64) -> Option<usize> {
     if lo > hi {
         return None;
     }
@@ -69,10 +69,8 @@ fn min_deleted(k: usize, k_new: usize) -> usize {
 
 /// T(x→y) for the path `to` (y) proposed from a path x of `from_edges` edges by keeping `to[..=a]` and
 /// replacing `deleted` edges of x after x_a by `added` edges; y's kept suffix starts at `a + added`
-/// (empty when that is `to.len()`, the emitter was regenerated). P(k'|k) P(kd|k,k') P(a|k,kd) times
-/// Σ_s P(s) p_s(y) over the splits s of the new vertices into s light-side and the rest eye-side ones
-/// that the sampler could have used, each p_s the product of the Dirac-convention densities
-/// (`PathView::dirac_pdfs`) of the new vertices from their own side.
+/// (empty when that is `to.len()`, the emitter was regenerated): P(k'|k) P(kd|k,k') P(a|k,kd) times the
+/// regrowth density Σ_s P(s) p_s(y) (`regrowth_density`).
 pub fn transition_density(
     scene: &Scene,
     bdpt: &Bdpt,
@@ -95,53 +93,67 @@ pub fn transition_density(
     let p_length = two_tailed_pmf(k, k_min, k_max, k_new);
     let p_deleted = two_tailed_pmf(2, min_deleted(k, k_new), k + 1, deleted);
     let p_position = 1.0 / (k + 2 - deleted) as f64;
-    let suffix_empty = c == n;
-    if suffix_empty && deleted == 1 {
+    if c == n && deleted == 1 {
         return 0.0;
     }
+    p_length * p_deleted * p_position * regrowth_density(scene, to, a, added)
+}
+
+/// Σ_s P(s) p_s(y): the density with which `regrow` makes `to` from its kept prefix `to[..=a]` and kept
+/// suffix `to[a + added..]` (empty when that is `to.len()`), summed over the uniformly chosen splits s
+/// of the new vertices into s light-side and the rest eye-side ones (`split_density`).
+pub(super) fn regrowth_density(scene: &Scene, to: &[Vertex], a: usize, added: usize) -> f64 {
+    if added == 0 || a + added > to.len() {
+        return 0.0;
+    }
+    let pdfs = PathView::whole(to).dirac_pdfs(scene);
+    (0..added).map(|s| split_density(scene, to, &pdfs, a, added, s)).sum::<f64>() / added as f64
+}
+
+/// p_s(y): the density with which `regrow`, having chosen the split `s`, makes `to`: the product of the
+/// Dirac-convention densities (`PathView::dirac_pdfs`, passed in as `pdfs`) of the new vertices from
+/// their own side. Zero where `regrow` refuses the ends or the split.
+fn split_density(scene: &Scene, to: &[Vertex], pdfs: &PathPdfs, a: usize, added: usize, s: usize) -> f64 {
+    let n = to.len();
+    let c = a + added;
+    let suffix_empty = c == n;
     if to[a].delta
         || (!suffix_empty && dirac_scatter(scene, &to[c]))
         || (suffix_empty && to[n - 1].is_delta_light(scene))
+        || (added < 2 && suffix_empty)
     {
         return 0.0;
     }
-    if added < 2 && suffix_empty {
+    let kept_environment = !suffix_empty && c == n - 1 && to[n - 1].kind == VertexKind::InfiniteLight;
+    if kept_environment && s >= 1 {
         return 0.0;
     }
-    let kept_environment = !suffix_empty && c == n - 1 && to[n - 1].kind == VertexKind::InfiniteLight;
-    let pdfs = PathView::whole(to).dirac_pdfs(scene);
-    let p_split = 1.0 / added as f64;
-    let mut sum = 0.0;
-    for s in 0..added {
-        if kept_environment && s >= 1 {
-            continue;
+    let t = added - 1 - s;
+    if suffix_empty && s == 0 {
+        // The eye walk itself ended on the emitter (no connection edge).
+        if !hit_emitter(scene, &to[n - 1]) {
+            return 0.0;
         }
-        let t = added - 1 - s;
-        if suffix_empty && s == 0 {
-            // The eye walk itself ended on the emitter (no connection edge).
-            if hit_emitter(scene, &to[n - 1]) {
-                let eye: f64 = pdfs.from_camera[a + 1..n].iter().map(|&p| p as f64).product();
-                sum += p_split * eye;
-            }
-            continue;
-        }
-        let (eye_end, light_end) = (&to[a + t], &to[a + t + 1]);
-        let camera_to_environment =
-            eye_end.kind == VertexKind::Camera && light_end.kind == VertexKind::InfiniteLight;
-        if !eye_end.connectible() || !light_end.connectible() || camera_to_environment {
-            continue;
-        }
-        let eye: f64 = pdfs.from_camera[a + 1..=a + t].iter().map(|&p| p as f64).product();
-        let light: f64 = pdfs.from_light[c - s..c].iter().map(|&p| p as f64).product();
-        sum += p_split * eye * light;
+        return pdfs.from_camera[a + 1..n].iter().map(|&p| p as f64).product();
     }
-    p_length * p_deleted * p_position * sum
+    let (eye_end, light_end) = (&to[a + t], &to[a + t + 1]);
+    let camera_to_environment =
+        eye_end.kind == VertexKind::Camera && light_end.kind == VertexKind::InfiniteLight;
+    if !eye_end.connectible() || !light_end.connectible() || camera_to_environment {
+        return 0.0;
+    }
+    let eye: f64 = pdfs.from_camera[a + 1..=a + t].iter().map(|&p| p as f64).product();
+    let light: f64 = pdfs.from_light[c - s..c].iter().map(|&p| p as f64).product();
+    eye * light
 }
 
-/// Whether an eye walk may end on `v` by hitting it: a surface that emits (not a Dirac light, which
-/// rays cannot hit, nor an environment, whose choice among several would need its own density).
+/// Whether an eye walk may end on `v` by hitting it: a point on an emitting surface (not a Dirac light,
+/// which rays cannot hit, nor an environment, whose choice among several would need its own density).
+/// The same point is a `Surface` vertex when an eye walk hit it and a `Light` vertex when it was sampled
+/// on the light; the density of a path must not depend on which, or the s = 0 term of paths whose
+/// emitter was sampled goes missing from the sum (it did: a 1.5% excess in the large step's estimate).
 fn hit_emitter(scene: &Scene, v: &Vertex) -> bool {
-    v.kind == VertexKind::Surface && v.light.is_some() && !v.is_delta_light(scene)
+    matches!(v.kind, VertexKind::Surface | VertexKind::Light) && v.light.is_some() && !v.is_delta_light(scene)
 }
 
 /// Whether a kept vertex scattered through a Dirac lobe. A point or spot light endpoint is flagged
@@ -235,7 +247,6 @@ impl<'a> Mutation<PathState, PathContext<'a>> for BidirectionalMutation {
         rng: &mut Sampler,
         stats: &mut MutationStats,
     ) -> Result<Proposal<PathState>, Failure> {
-        let scene = ctx.scene;
         let x = &current.vertices;
         if x.len() < 2 {
             return Err(Failure::NotApplicable);
@@ -249,95 +260,109 @@ impl<'a> Mutation<PathState, PathContext<'a>> for BidirectionalMutation {
         let positions = k + 2 - deleted;
         let a = ((rng.next_f64() * positions as f64) as usize).min(positions - 1);
         let b = a + deleted;
-        let suffix_empty = b == k + 1;
-        if suffix_empty && deleted == 1 {
+        if b == k + 1 && deleted == 1 {
             return Err(Failure::Failed("emitter_would_be_inner"));
         }
-        if x[a].delta || (!suffix_empty && dirac_scatter(scene, &x[b])) {
-            return Err(Failure::Failed("dirac_kept_vertex"));
-        }
-        if suffix_empty && x[k].is_delta_light(scene) {
-            return Err(Failure::Failed("dirac_light"));
-        }
-        // With the emitter regenerated, s = 0 means the eye walk must hit an emitter itself: the only
-        // way to build paths whose light end follows a Dirac vertex (a light seen through glass).
-        if suffix_empty && added < 2 {
-            return Err(Failure::Failed("no_split"));
-        }
-        let s = ((rng.next_f64() * added as f64) as usize).min(added - 1);
-        let t = added - 1 - s;
-        if !suffix_empty && b == k && x[k].kind == VertexKind::InfiniteLight && s >= 1 {
-            return Err(Failure::Failed("unsupported"));
-        }
-
-        let mut eye: Vec<Vertex> = x[..=a].to_vec();
-        if t > 0 {
-            let ray = if a == 0 {
-                let u = rng.next_2d();
-                let film = Vec2::new(u.x * scene.film.width as f32, u.y * scene.film.height as f32);
-                scene.camera.generate_ray(film)
-            } else {
-                kept_vertex_ray(scene, &x[a], &x[a - 1], TransportMode::Radiance, rng)?
-            };
-            walk_exactly(ctx, &mut eye, ray, TransportMode::Radiance, t, rng)?;
-        }
-
-        if suffix_empty && s == 0 {
-            if !hit_emitter(scene, &eye[eye.len() - 1]) {
-                return Err(Failure::Failed("missed_emitter"));
-            }
-            return finish(ctx, current, eye, (a, deleted, added), stats);
-        }
-
-        // The light side is held from the emitter inwards, as the walk grows it.
-        let mut light: Vec<Vertex>;
-        if suffix_empty {
-            let (u_light, u_pos, u_dir) = (rng.next_1d(), rng.next_2d(), rng.next_2d());
-            let start =
-                sample_light_endpoint(scene, u_light, u_pos, u_dir).ok_or(Failure::Failed("no_emission"))?;
-            if start.vertex.is_delta_light(scene) {
-                // Dirac emitters are never regenerated (see `transition_density`).
-                return Err(Failure::Failed("dirac_light"));
-            }
-            light = vec![start.vertex];
-            if s > 1 {
-                walk_exactly(ctx, &mut light, start.ray, TransportMode::Importance, s - 1, rng)?;
-            }
-        } else {
-            light = x[b..].iter().rev().copied().collect();
-            if s > 0 {
-                let ray = if b == k {
-                    let emitter = &x[k];
-                    let dir = emitter
-                        .sample_emission_direction(scene, rng.next_2d())
-                        .ok_or(Failure::Failed("no_emission"))?;
-                    let origin = if emitter.is_surface() {
-                        offset_origin(emitter.p, emitter.ng, dir)
-                    } else {
-                        emitter.p
-                    };
-                    Ray::new(origin, dir)
-                } else {
-                    kept_vertex_ray(scene, &x[b], &x[b + 1], TransportMode::Importance, rng)?
-                };
-                walk_exactly(ctx, &mut light, ray, TransportMode::Importance, s, rng)?;
-            }
-        }
-
-        let (eye_end, light_end) = (&eye[eye.len() - 1], &light[light.len() - 1]);
-        let camera_to_environment =
-            eye_end.kind == VertexKind::Camera && light_end.kind == VertexKind::InfiniteLight;
-        if !eye_end.connectible() || !light_end.connectible() || camera_to_environment {
-            return Err(Failure::Failed("not_connectible"));
-        }
-        ctx.counters.rays += 1;
-        if !visible(scene, eye_end, light_end) {
-            return Err(Failure::Failed("occluded"));
-        }
-        let mut y = eye;
-        y.extend(light.iter().rev());
+        let y = regrow(ctx, x, a, b, added, rng)?;
         finish(ctx, current, y, (a, deleted, added), stats)
     }
+}
+
+/// Replaces the vertices of `x` strictly between x_a and x_b (b = `x.len()`: the emitter too) by
+/// `added` new edges, grown from both kept ends by random walks and joined by one connection edge; the
+/// split between the two walks is uniform (`regrowth_density` is the density of the result).
+pub(super) fn regrow(
+    ctx: &mut PathContext,
+    x: &[Vertex],
+    a: usize,
+    b: usize,
+    added: usize,
+    rng: &mut Sampler,
+) -> Result<Vec<Vertex>, Failure> {
+    let scene = ctx.scene;
+    let k = x.len() - 1;
+    let suffix_empty = b == k + 1;
+    if x[a].delta || (!suffix_empty && dirac_scatter(scene, &x[b])) {
+        return Err(Failure::Failed("dirac_kept_vertex"));
+    }
+    if suffix_empty && x[k].is_delta_light(scene) {
+        return Err(Failure::Failed("dirac_light"));
+    }
+    // With the emitter regenerated, s = 0 means the eye walk must hit an emitter itself: the only
+    // way to build paths whose light end follows a Dirac vertex (a light seen through glass).
+    if suffix_empty && added < 2 {
+        return Err(Failure::Failed("no_split"));
+    }
+    let s = ((rng.next_f64() * added as f64) as usize).min(added - 1);
+    let t = added - 1 - s;
+    if !suffix_empty && b == k && x[k].kind == VertexKind::InfiniteLight && s >= 1 {
+        return Err(Failure::Failed("unsupported"));
+    }
+
+    let mut eye: Vec<Vertex> = x[..=a].to_vec();
+    if t > 0 {
+        let ray = if a == 0 {
+            let u = rng.next_2d();
+            let film = Vec2::new(u.x * scene.film.width as f32, u.y * scene.film.height as f32);
+            scene.camera.generate_ray(film)
+        } else {
+            kept_vertex_ray(scene, &x[a], &x[a - 1], TransportMode::Radiance, rng)?
+        };
+        walk_exactly(ctx, &mut eye, ray, TransportMode::Radiance, t, rng)?;
+    }
+
+    if suffix_empty && s == 0 {
+        if !hit_emitter(scene, &eye[eye.len() - 1]) {
+            return Err(Failure::Failed("missed_emitter"));
+        }
+        return Ok(eye);
+    }
+
+    // The light side is held from the emitter inwards, as the walk grows it.
+    let mut light: Vec<Vertex>;
+    if suffix_empty {
+        let (u_light, u_pos, u_dir) = (rng.next_1d(), rng.next_2d(), rng.next_2d());
+        let start =
+            sample_light_endpoint(scene, u_light, u_pos, u_dir).ok_or(Failure::Failed("no_emission"))?;
+        if start.vertex.is_delta_light(scene) {
+            // Dirac emitters are never regenerated (see `regrowth_density`).
+            return Err(Failure::Failed("dirac_light"));
+        }
+        light = vec![start.vertex];
+        if s > 1 {
+            walk_exactly(ctx, &mut light, start.ray, TransportMode::Importance, s - 1, rng)?;
+        }
+    } else {
+        light = x[b..].iter().rev().copied().collect();
+        if s > 0 {
+            let ray = if b == k {
+                let emitter = &x[k];
+                let dir = emitter
+                    .sample_emission_direction(scene, rng.next_2d())
+                    .ok_or(Failure::Failed("no_emission"))?;
+                let origin =
+                    if emitter.is_surface() { offset_origin(emitter.p, emitter.ng, dir) } else { emitter.p };
+                Ray::new(origin, dir)
+            } else {
+                kept_vertex_ray(scene, &x[b], &x[b + 1], TransportMode::Importance, rng)?
+            };
+            walk_exactly(ctx, &mut light, ray, TransportMode::Importance, s, rng)?;
+        }
+    }
+
+    let (eye_end, light_end) = (&eye[eye.len() - 1], &light[light.len() - 1]);
+    let camera_to_environment =
+        eye_end.kind == VertexKind::Camera && light_end.kind == VertexKind::InfiniteLight;
+    if !eye_end.connectible() || !light_end.connectible() || camera_to_environment {
+        return Err(Failure::Failed("not_connectible"));
+    }
+    ctx.counters.rays += 1;
+    if !visible(scene, eye_end, light_end) {
+        return Err(Failure::Failed("occluded"));
+    }
+    let mut y = eye;
+    y.extend(light.iter().rev());
+    Ok(y)
 }
 
 /// Evaluates the proposed path y and the ratio of the two transition densities.

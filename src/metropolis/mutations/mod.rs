@@ -6,6 +6,7 @@
 pub mod bidir;
 pub mod caustic;
 pub mod halfvector;
+pub mod largestep;
 pub mod lens;
 mod manifold;
 pub mod multichain;
@@ -32,16 +33,19 @@ pub enum MutationKind {
     Manifold,
     /// Half-vector space mutation (HSLT, Kaplanyan et al. 2014).
     HalfVector,
+    /// Large step: an independent new path from the bidirectional sampler.
+    LargeStep,
 }
 
 impl MutationKind {
-    pub const ALL: [MutationKind; 6] = [
+    pub const ALL: [MutationKind; 7] = [
         MutationKind::Bidirectional,
         MutationKind::Lens,
         MutationKind::Caustic,
         MutationKind::MultiChain,
         MutationKind::Manifold,
         MutationKind::HalfVector,
+        MutationKind::LargeStep,
     ];
 
     pub fn name(self) -> &'static str {
@@ -52,6 +56,7 @@ impl MutationKind {
             MutationKind::MultiChain => "multichain",
             MutationKind::Manifold => "manifold",
             MutationKind::HalfVector => "hslt",
+            MutationKind::LargeStep => "largestep",
         }
     }
 
@@ -133,6 +138,7 @@ pub fn make<'a>(
         MutationKind::Caustic => Some(Box::new(caustic::CausticPerturbation)),
         MutationKind::MultiChain => Some(Box::new(multichain::MultiChainPerturbation)),
         MutationKind::HalfVector => Some(Box::new(halfvector::HalfVectorMutation::new(settings.halfvector))),
+        MutationKind::LargeStep => Some(Box::new(largestep::LargeStep)),
         MutationKind::Manifold => {
             Some(Box::new(ManifoldPerturbation::new(settings.lambda, settings.specular_threshold)))
         }
