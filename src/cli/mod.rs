@@ -53,6 +53,11 @@ pub enum Command {
     /// (viridis colours: dark blue 0, yellow 1). Black: the walk failed or a segment is occluded;
     /// transparent: outside the disk. +x is the shading tangent s, +y (up) is t.
     PlotHalfvector(plot_halfvector::PlotHalfvectorArgs),
+    /// The fifteen stiff and extreme cases of the HSLT method (near-specular, grazing, long chains,
+    /// singular J, ...): measures each and prints a Markdown table (case, measured, outcome).
+    ///
+    /// Exits with status 1 if any case fails. docs/stability.md is this command's output.
+    Stability(StabilityArgs),
     /// Write the man pages and shell completions into a directory (used by scripts/build-deb.sh).
     #[command(hide = true)]
     GenerateAssets(assets::GenerateAssetsArgs),
@@ -68,6 +73,16 @@ pub enum BenchCommand {
     Integrators(BenchIntegratorsArgs),
     /// HSLT mutations per second, with the Newton corrector's rays batched and cast one at a time.
     Hslt(BenchHsltArgs),
+}
+
+#[derive(Args, Debug)]
+pub struct StabilityArgs {
+    /// Run only these cases (numbers 1-15, comma-separated); all by default.
+    #[arg(long, value_delimiter = ',')]
+    pub case: Vec<usize>,
+    /// The test suite's smaller sample counts instead of the table's.
+    #[arg(long)]
+    pub quick: bool,
 }
 
 #[derive(Args, Debug)]
@@ -233,6 +248,7 @@ pub fn run(cli: Cli) -> anyhow::Result<i32> {
         Command::Compare(args) => report::run_compare(args),
         Command::Reference(args) => report::run_reference(args),
         Command::PlotHalfvector(args) => plot_halfvector::run(args),
+        Command::Stability(args) => run_stability(args),
     }
 }
 
@@ -580,6 +596,18 @@ fn run_bench_integrators(args: BenchIntegratorsArgs) -> anyhow::Result<i32> {
         );
     }
     Ok(0)
+}
+
+fn run_stability(args: StabilityArgs) -> anyhow::Result<i32> {
+    use crate::stability::{self, Effort};
+    let known: Vec<usize> = stability::cases().iter().map(|c| c.number).collect();
+    if let Some(bad) = args.case.iter().find(|n| !known.contains(n)) {
+        bail!("--case {bad}: no such stability case (known: {known:?})");
+    }
+    let effort = if args.quick { Effort::Quick } else { Effort::Full };
+    let runs = stability::run(effort, &args.case);
+    print!("{}", stability::table(&runs));
+    Ok(if runs.iter().all(|r| r.report.passed()) { 0 } else { 1 })
 }
 
 fn run_bench_hslt(args: BenchHsltArgs) -> anyhow::Result<i32> {
