@@ -8,6 +8,7 @@ pub mod report;
 use crate::accel::AccelKind;
 use crate::image::{ImageBuf, Metadata};
 use crate::integrators::{self, DepthLimits, IntegratorKind};
+use crate::metropolis::mutations::halfvector::TraceDirection;
 use crate::metropolis::MutationKind;
 use crate::path::MisHeuristic;
 use crate::render::{self, RenderOptions, RenderStats};
@@ -95,6 +96,9 @@ pub struct BenchHsltArgs {
     /// Passes per mode, alternating; the median is reported.
     #[arg(long, default_value_t = 3)]
     pub repeats: usize,
+    /// The end the walk traces from: camera, light or rule (see `render --hslt-direction`).
+    #[arg(long, value_name = "DIR", default_value = "camera", value_parser = ["camera", "light", "rule"])]
+    pub direction: String,
 }
 
 #[derive(Args, Debug)]
@@ -177,6 +181,10 @@ pub struct RenderArgs {
     /// specular ones by the manifold perturbation (0 treats every glossy vertex as diffuse).
     #[arg(long, value_name = "ALPHA", default_value_t = 0.1)]
     pub specular_threshold: f32,
+    /// HSLT: the end the half-vector mutation's Newton walk traces from: camera, light, or rule (the
+    /// end whose adjacent vertex is smoother).
+    #[arg(long, value_name = "DIR", default_value = "camera", value_parser = ["camera", "light", "rule"])]
+    pub hslt_direction: String,
     /// PSSMLT: probability of a large step (an independent new sample) per mutation.
     #[arg(long, value_name = "P", default_value_t = 0.3)]
     pub p_large: f64,
@@ -223,6 +231,10 @@ fn parse_define(s: &str) -> Result<(String, String), String> {
         Some((k, v)) if !k.trim().is_empty() => Ok((k.trim().to_string(), v.to_string())),
         _ => Err(format!("'{s}' is not of the form NAME=VALUE")),
     }
+}
+
+pub(crate) fn parse_hslt_direction(name: &str) -> anyhow::Result<TraceDirection> {
+    TraceDirection::parse(name).map_err(|e| anyhow!("--hslt-direction: {e}"))
 }
 
 fn parse_accel(name: &str) -> anyhow::Result<AccelKind> {
@@ -347,6 +359,7 @@ fn run_render(args: RenderArgs) -> anyhow::Result<i32> {
         bail!("--specular-threshold must be a roughness ≥ 0");
     }
     settings.mutation.specular_threshold = args.specular_threshold;
+    settings.mutation.halfvector.direction = parse_hslt_direction(&args.hslt_direction)?;
     let integrator = integrators::make_with(kind, &settings);
     let options = RenderOptions {
         spp: args.spp.or(if args.time.is_some() { None } else { Some(scene.spp) }),
@@ -612,7 +625,8 @@ fn run_stability(args: StabilityArgs) -> anyhow::Result<i32> {
 
 fn run_bench_hslt(args: BenchHsltArgs) -> anyhow::Result<i32> {
     let scene = load(&args.scene, AccelKind::Embree)?;
-    print!("{}", crate::bench::bench_hslt(&scene, args.proposals, args.repeats)?);
+    let direction = parse_hslt_direction(&args.direction)?;
+    print!("{}", crate::bench::bench_hslt(&scene, args.proposals, args.repeats, direction)?);
     Ok(0)
 }
 
