@@ -213,8 +213,9 @@ fn detailed_balance_on_fig15_traced_from_the_light() {
 
 #[test]
 fn detailed_balance_on_jewelry_with_the_direction_rule() {
-    // On jewelry the rule traces about a tenth of the walks from the light (measured 0.095: paths whose vertex next
-    // to the light is a smoother gem or ring than the one the camera sees), so both starts occur.
+    // On jewelry the rule traces about a tenth of the walks from the light (measured 0.095: paths
+    // whose vertex next to the light is a smoother gem or ring than the one the camera sees), so
+    // both starts occur.
     // HSLT keeps every vertex on its shape and these shapes have uniform roughness, so the walk back
     // starts from the same end as the forward walk.
     let (stats, applicable) = check_detailed_balance(
