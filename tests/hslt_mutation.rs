@@ -332,6 +332,35 @@ fn hslt_only(scene: &Scene, chains: usize, params: HalfVectorParams) -> PathMlt 
     PathMlt::new("hslt", bdpt(scene), settings)
 }
 
+#[test]
+fn the_tracing_direction_is_recorded_and_followed() {
+    // What `--hslt-direction` sets reaches the mutation: the metadata names it, and the share of
+    // walks traced from the light is 0, 1, or in between for the rule (jewelry: about a tenth).
+    let s = scene("scenes/jewelry/scene.xml", &[("resx", "32"), ("resy", "24"), ("max_depth", "4")]);
+    for direction in TraceDirection::ALL {
+        assert_eq!(TraceDirection::parse(direction.name()), Ok(direction));
+        let integrator = hslt_only(&s, 256, HalfVectorParams { direction, ..HalfVectorParams::default() });
+        let options = RenderOptions { spp: Some(8), seed: 5, ..Default::default() };
+        let out = hslt::integrators::Integrator::render(&integrator, &s, &options, &AtomicBool::new(false));
+        assert_eq!(meta(&out, "hslt.mlt.hslt.direction"), Some(direction.name()));
+        let walks: f64 = meta(&out, "hslt.mlt.hslt.mean.converged_walks").unwrap().parse().unwrap();
+        let from_light: f64 =
+            meta(&out, "hslt.mlt.hslt.mean.traced_from_light").map_or(0.0, |v| v.parse().unwrap());
+        eprintln!(
+            "{}: {from_light:.3} of the proposals traced from the light ({walks:.3} converged)",
+            direction.name()
+        );
+        // Means are per applicable proposal; each one that survives preparing X (all but a degenerate
+        // few per thousand) counts its start.
+        match direction {
+            TraceDirection::Camera => assert_eq!(from_light, 0.0),
+            TraceDirection::Light => assert!(from_light > 0.99 && from_light <= 1.0, "{from_light}"),
+            TraceDirection::Rule => assert!(from_light > 0.01 && from_light < 0.99, "{from_light}"),
+        }
+    }
+    assert!(TraceDirection::parse("sideways").is_err());
+}
+
 fn check_against_bdpt(rel: &str, defines: &[(&str, &str)]) {
     // Chains that start stationary (seeds drawn ∝ target) and run only the half-vector mutation keep
     // every recorded state distributed as the target, so their image is unbiased even though HSLT
