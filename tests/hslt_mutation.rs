@@ -522,6 +522,17 @@ fn hslt_moves_no_mass_on_fig15() {
 }
 
 #[test]
+fn hslt_moves_no_mass_on_fig15_traced_from_the_light() {
+    // The strongest of the statistical checks (it sees a missing |det J| ratio at 5.9 against 0.9) on
+    // walks through the rough glass cube traced from the light.
+    check_block_shift(
+        "scenes/fig15/scene.xml",
+        &[("resx", "64"), ("resy", "48"), ("max_depth", "4"), ("roughness", "0.1")],
+        HalfVectorParams { direction: TraceDirection::Light, ..HalfVectorParams::default() },
+    );
+}
+
+#[test]
 fn hslt_moves_no_mass_on_jewelry() {
     check_block_shift(
         "scenes/jewelry/scene.xml",
