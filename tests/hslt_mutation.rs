@@ -231,18 +231,17 @@ fn detailed_balance_on_jewelry_with_the_direction_rule() {
     );
 }
 
-#[test]
-fn light_traced_walk_reaches_the_camera_traced_solution() {
-    // The same targets, walked from either end of random applicable jewelry paths: the half vectors
+fn check_light_walk_reaches_the_camera_solution(rel: &str, defines: &[(&str, &str)]) {
+    // The same targets, walked from either end of random applicable paths: the half vectors
     // and |det J| of a reversed path are the same quantities (checked first, to rounding), so a walk
     // from the light must land on the solution the camera walk finds. Each walk stops within 1e-4 of
     // the targets in h (often much closer: the relative tolerance), and |dx/dh| is of the order of the
     // segment lengths, so converged pairs agree to ~1e-4 of a segment or better (measured: median
-    // 2e-7, 99% below 1e-4, tail to 3e-4 where J is less well conditioned). Beyond the mutation's own
-    // REVERSIBILITY_TOLERANCE the two walks found distinct solutions of the same targets, which the
-    // scene's curved geometry allows (measured: 1 pair in 635); the reversibility check exists for
-    // them, so they are allowed but must stay rare (1%: ~6 times the measured rate).
-    let s = scene("scenes/jewelry/scene.xml", &[("resx", "64"), ("resy", "48"), ("max_depth", "5")]);
+    // 2e-7 and 2e-6, 99% below 1e-4, tail to 3e-4 where J is less well conditioned). Beyond the
+    // mutation's own REVERSIBILITY_TOLERANCE the two walks found distinct solutions of the same
+    // targets, which curved geometry allows (measured: 1 pair in 635 on jewelry, none of 457 on
+    // fig15); the reversibility check exists for them, so they are allowed but must stay rare (1%).
+    let s = scene(rel, defines);
     let bdpt = bdpt(&s);
     let seeds = PathSeeds::run(&s, &bdpt, 31, 16_384, &AtomicBool::new(false));
     let params = HalfVectorParams::default();
@@ -297,7 +296,7 @@ fn light_traced_walk_reaches_the_camera_traced_solution() {
     mismatches.sort_by(f64::total_cmp);
     let median = mismatches.get(mismatches.len() / 2).copied().unwrap_or(0.0);
     eprintln!(
-        "camera vs light walks: both converged {both} (differing {differing_walks}), camera only \
+        "{rel}: camera vs light walks: both converged {both} (differing {differing_walks}), camera only \
          {camera_only}, light only {light_only}, neither {neither}; relative mismatch median {median:.2e}, \
          worst {worst:.2e}, above 1e-4: {}",
         mismatches.iter().filter(|&&m| m > 1e-4).count()
@@ -312,6 +311,19 @@ fn light_traced_walk_reaches_the_camera_traced_solution() {
     assert!(within(1e-4) * 100 >= 95 * both, "only {} of {both} pairs agree to 1e-4", within(1e-4));
     let distinct = both - within(REVERSIBILITY_TOLERANCE);
     assert!(distinct * 100 <= both, "{distinct} of {both} light walks reached another solution");
+}
+
+#[test]
+fn light_traced_walk_reaches_the_camera_traced_solution() {
+    // Jewelry: reflections on the rings and refractions through the gems; fig15: through the cube.
+    check_light_walk_reaches_the_camera_solution(
+        "scenes/jewelry/scene.xml",
+        &[("resx", "64"), ("resy", "48"), ("max_depth", "5")],
+    );
+    check_light_walk_reaches_the_camera_solution(
+        "scenes/fig15/scene.xml",
+        &[("resx", "64"), ("resy", "48"), ("max_depth", "5"), ("roughness", "0.1")],
+    );
 }
 
 fn meta<'a>(out: &'a hslt::integrators::RenderOutput, key: &str) -> Option<&'a str> {
