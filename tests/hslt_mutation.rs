@@ -840,3 +840,67 @@ fn acceptance_table() {
         }
     }
 }
+
+/// Measurement helper, not a check: the same proposal (same start, same targets) walked from either
+/// end, and what a per-path choice of the end could gain: the smoother-end rule (`Rule`), the
+/// shorter-end-segment rule and its opposite, and the best of both per proposal (an upper bound for
+/// any rule, which cannot see the targets).
+/// `cargo test --test hslt_mutation -- --ignored direction_table --nocapture`.
+#[test]
+#[ignore]
+fn direction_table() {
+    for (rel, defines) in [
+        ("scenes/jewelry/scene.xml", vec![("resx", "128"), ("resy", "96")]),
+        ("scenes/fig17/scene.xml", vec![("resx", "128"), ("resy", "96")]),
+        ("scenes/fig15/scene.xml", vec![("resx", "128"), ("resy", "96")]),
+    ] {
+        let s = scene(rel, &defines);
+        let bdpt = bdpt(&s);
+        let seeds = PathSeeds::run(&s, &bdpt, 55, 65_536, &AtomicBool::new(false));
+        let mut ctx = PathContext::new(&s, &bdpt);
+        let mut draw = Sampler::new(55, 0, 0);
+        let mut mutations: Vec<HalfVectorMutation> = [TraceDirection::Camera, TraceDirection::Light]
+            .into_iter()
+            .map(|direction| {
+                HalfVectorMutation::new(HalfVectorParams { direction, ..HalfVectorParams::default() })
+            })
+            .collect();
+        // Sums of min(1, R) for: camera, light, smoother end, shorter end segment, longer, best of both.
+        let mut sums = [0.0f64; 6];
+        let mut n = 0usize;
+        for i in 0..20_000u64 {
+            let Some(x) = seeds.draw(&s, &bdpt, 55, draw.next_f64()) else { continue };
+            if !applicable(&x.vertices) {
+                continue;
+            }
+            n += 1;
+            let mut acceptance = [0.0f64; 2];
+            for (a, mutation) in acceptance.iter_mut().zip(&mut mutations) {
+                // The same stream for both ends: the targets are drawn before the walk.
+                let mut rng = Sampler::new(56, i, 0);
+                let mut stats = MutationStats::default();
+                if let Ok(p) = mutation.propose(&x, &mut ctx, &mut rng, &mut stats) {
+                    let r = target(&p.state) * p.t_ratio / target(&x);
+                    *a = if r.is_finite() { r.min(1.0) } else { 0.0 };
+                }
+            }
+            let v = &x.vertices;
+            let k = v.len() - 1;
+            let (first, last) = ((v[1].p - v[0].p).length(), (v[k].p - v[k - 1].p).length());
+            let smoother_light = TraceDirection::Rule.start_for(v) == TraceStart::Light;
+            let pick = |light: bool| acceptance[light as usize];
+            sums[0] += acceptance[0];
+            sums[1] += acceptance[1];
+            sums[2] += pick(smoother_light);
+            sums[3] += pick(last < first);
+            sums[4] += pick(last > first);
+            sums[5] += acceptance[0].max(acceptance[1]);
+        }
+        let m = sums.map(|v| v / n.max(1) as f64);
+        println!(
+            "{rel}: {n} proposals; E[min(1,R)] camera {:.4}, light {:.4}, smoother end {:.4}, shorter end \
+             segment {:.4}, longer {:.4}, best of both {:.4}",
+            m[0], m[1], m[2], m[3], m[4], m[5]
+        );
+    }
+}
