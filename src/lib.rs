@@ -22,4 +22,5 @@ pub mod sampling;
 pub mod scene;
 pub mod sensor;
 pub mod spectrum;
+pub mod stability;
 pub mod texture;

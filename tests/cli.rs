@@ -157,3 +157,38 @@ fn bench_rays_compares_both_backends() {
         assert!(text.contains(needle), "'{needle}' missing from:\n{text}");
     }
 }
+
+#[test]
+fn hslt_direction_reaches_the_mutation_and_the_metadata() {
+    let dir = tmp_dir("direction");
+    let exr = dir.join("out.exr");
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/jewelry/scene.xml");
+    let out = hslt()
+        .args([
+            "render",
+            scene.to_str().unwrap(),
+            "-o",
+            exr.to_str().unwrap(),
+            "-D",
+            "resx=32",
+            "-D",
+            "resy=24",
+        ])
+        .args(["--integrator", "hslt", "--hslt-direction", "light", "--spp", "2", "--chains", "64", "-q"])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", stderr(&out));
+    let meta = hslt::image::read_exr_metadata(&exr).unwrap();
+    let get = |k: &str| meta.iter().find(|(n, _)| n == k).map(|(_, v)| v.clone());
+    assert_eq!(get("hslt.mlt.hslt.direction").as_deref(), Some("light"));
+    // Every HSLT walk of the render started at the light (the few proposals whose X is degenerate
+    // never walk, hence not exactly 1).
+    let from_light: f64 = get("hslt.mlt.hslt.mean.traced_from_light").unwrap().parse().unwrap();
+    assert!(from_light > 0.99, "{from_light}");
+    let f = data("base.xml");
+    expect_error(
+        &["render", f.to_str().unwrap(), "-o", "x.exr", "--hslt-direction", "sideways"],
+        &["sideways"],
+    );
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -1,13 +1,17 @@
 //! `hslt bench hslt`: HSLT mutations per second on a scene's stationary paths (drawn from a BDPT
 //! seeding pass), with the Newton corrector's ray casts batched per pass (one query for the three
-//! candidate step sizes) and cast one at a time, measured side by side on the same proposals.
+//! candidate step sizes) and cast one at a time, measured side by side on the same proposals, with
+//! the walk traced from the chosen end (`--direction`) and what the proposals gave (acceptance, failures).
 
 use crate::integrators::{Bdpt, DepthLimits};
 use crate::manifold::WalkSettings;
-use crate::metropolis::mutations::halfvector::{applicable, HalfVectorMutation, HalfVectorParams};
-use crate::metropolis::{Mutation, MutationStats, PathContext, PathSeeds, PathState};
+use crate::metropolis::mutations::halfvector::{
+    applicable, HalfVectorMutation, HalfVectorParams, TraceDirection,
+};
+use crate::metropolis::{Failure, Mutation, MutationStats, PathContext, PathSeeds, PathState};
 use crate::sampling::Sampler;
 use crate::scene::Scene;
+use crate::spectrum::luminance;
 use std::fmt::Write as _;
 use std::sync::atomic::AtomicBool;
 use std::time::Instant;
@@ -17,29 +21,54 @@ struct Pass {
     seconds: f64,
     rays: u64,
     built: usize,
+    /// Σ min(1, acceptance ratio) over the proposals: the chain's expected acceptance from these starts.
+    acceptance_sum: f64,
+    stats: MutationStats,
 }
 
-fn run_pass(scene: &Scene, bdpt: &Bdpt, starts: &[PathState], batch_rays: bool) -> Pass {
+fn run_pass(
+    scene: &Scene,
+    bdpt: &Bdpt,
+    starts: &[PathState],
+    batch_rays: bool,
+    direction: TraceDirection,
+) -> Pass {
     let defaults = HalfVectorParams::default();
-    let params = HalfVectorParams { walk: WalkSettings { batch_rays, ..defaults.walk }, ..defaults };
+    let params =
+        HalfVectorParams { walk: WalkSettings { batch_rays, ..defaults.walk }, direction, ..defaults };
     let mut mutation = HalfVectorMutation::new(params);
     let mut ctx = PathContext::new(scene, bdpt);
     // The same stream in both modes: the same targets, so the same walks, differ only in ray casting.
     let mut rng = Sampler::new(0x4853, 0, 0);
     let start = Instant::now();
     let mut built = 0;
+    let mut acceptance_sum = 0.0;
+    let mut stats = MutationStats::default();
     for x in starts {
-        let mut stats = MutationStats::default();
-        if mutation.propose(x, &mut ctx, &mut rng, &mut stats).is_ok() {
-            built += 1;
+        match mutation.propose(x, &mut ctx, &mut rng, &mut stats) {
+            Ok(p) => {
+                built += 1;
+                let ratio =
+                    luminance(p.state.contribution) as f64 * p.t_ratio / luminance(x.contribution) as f64;
+                if ratio.is_finite() {
+                    acceptance_sum += ratio.min(1.0);
+                }
+            }
+            Err(Failure::Failed(reason)) => *stats.failed.entry(reason).or_insert(0) += 1,
+            Err(Failure::NotApplicable) => {}
         }
     }
-    Pass { seconds: start.elapsed().as_secs_f64(), rays: ctx.counters.rays, built }
+    Pass { seconds: start.elapsed().as_secs_f64(), rays: ctx.counters.rays, built, acceptance_sum, stats }
 }
 
 /// Proposes the HSLT mutation once from each of `proposals` stationary paths the mutation applies to,
 /// `repeats` times per mode (alternating, on the calling thread), and reports the medians.
-pub fn bench_hslt(scene: &Scene, proposals: usize, repeats: usize) -> anyhow::Result<String> {
+pub fn bench_hslt(
+    scene: &Scene,
+    proposals: usize,
+    repeats: usize,
+    direction: TraceDirection,
+) -> anyhow::Result<String> {
     let limits = DepthLimits { max_depth: scene.integrator.max_depth, rr_depth: scene.integrator.rr_depth };
     let bdpt = Bdpt::new(limits, scene.integrator.hide_emitters);
     let pixels = scene.film.width * scene.film.height;
@@ -65,8 +94,8 @@ pub fn bench_hslt(scene: &Scene, proposals: usize, repeats: usize) -> anyhow::Re
     let mut batched = Vec::new();
     let mut single = Vec::new();
     for _ in 0..repeats.max(1) {
-        batched.push(run_pass(scene, &bdpt, &starts, true));
-        single.push(run_pass(scene, &bdpt, &starts, false));
+        batched.push(run_pass(scene, &bdpt, &starts, true, direction));
+        single.push(run_pass(scene, &bdpt, &starts, false, direction));
     }
     let median = |passes: &mut Vec<Pass>| {
         passes.sort_by(|a, b| a.seconds.total_cmp(&b.seconds));
@@ -76,8 +105,9 @@ pub fn bench_hslt(scene: &Scene, proposals: usize, repeats: usize) -> anyhow::Re
     let mut out = String::new();
     let _ = writeln!(
         out,
-        "HSLT proposals from {} stationary paths, one thread, median of {repeats}",
-        starts.len()
+        "HSLT proposals from {} stationary paths, one thread, median of {repeats}, traced from: {}",
+        starts.len(),
+        direction.name()
     );
     let _ = writeln!(
         out,
@@ -95,5 +125,19 @@ pub fn bench_hslt(scene: &Scene, proposals: usize, repeats: usize) -> anyhow::Re
         );
     }
     let _ = writeln!(out, "speed-up of batched over single-ray casts: {:.3}x", s.seconds / b.seconds);
+    let n = starts.len() as f64;
+    let sum = |what: &str| b.stats.sums.get(what).copied().unwrap_or(0.0);
+    let _ = writeln!(
+        out,
+        "acceptance {:.4}, built {:.4}, mean Newton iterations {:.2}, traced from the light {:.3}",
+        b.acceptance_sum / n,
+        b.built as f64 / n,
+        sum("newton_iterations") / sum("converged_walks").max(1.0),
+        sum("traced_from_light") / n
+    );
+    let mut failures: Vec<_> = b.stats.failed.iter().collect();
+    failures.sort_by(|x, y| y.1.cmp(x.1));
+    let failures: Vec<String> = failures.iter().map(|(r, c)| format!("{r} {:.4}", **c as f64 / n)).collect();
+    let _ = writeln!(out, "failures per proposal: {}", failures.join(", "));
     Ok(out)
 }

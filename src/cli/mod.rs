@@ -8,6 +8,7 @@ pub mod report;
 use crate::accel::AccelKind;
 use crate::image::{ImageBuf, Metadata};
 use crate::integrators::{self, DepthLimits, IntegratorKind};
+use crate::metropolis::mutations::halfvector::TraceDirection;
 use crate::metropolis::MutationKind;
 use crate::path::MisHeuristic;
 use crate::render::{self, RenderOptions, RenderStats};
@@ -53,6 +54,11 @@ pub enum Command {
     /// (viridis colours: dark blue 0, yellow 1). Black: the walk failed or a segment is occluded;
     /// transparent: outside the disk. +x is the shading tangent s, +y (up) is t.
     PlotHalfvector(plot_halfvector::PlotHalfvectorArgs),
+    /// The fifteen stiff and extreme cases of the HSLT method (near-specular, grazing, long chains,
+    /// singular J, ...): measures each and prints a Markdown table (case, measured, outcome).
+    ///
+    /// Exits with status 1 if any case fails. docs/stability.md is this command's output.
+    Stability(StabilityArgs),
     /// Write the man pages and shell completions into a directory (used by scripts/build-deb.sh).
     #[command(hide = true)]
     GenerateAssets(assets::GenerateAssetsArgs),
@@ -71,6 +77,16 @@ pub enum BenchCommand {
 }
 
 #[derive(Args, Debug)]
+pub struct StabilityArgs {
+    /// Run only these cases (numbers 1-15, comma-separated); all by default.
+    #[arg(long, value_delimiter = ',')]
+    pub case: Vec<usize>,
+    /// The test suite's smaller sample counts instead of the table's.
+    #[arg(long)]
+    pub quick: bool,
+}
+
+#[derive(Args, Debug)]
 pub struct BenchHsltArgs {
     #[command(flatten)]
     pub scene: SceneArgs,
@@ -80,6 +96,9 @@ pub struct BenchHsltArgs {
     /// Passes per mode, alternating; the median is reported.
     #[arg(long, default_value_t = 3)]
     pub repeats: usize,
+    /// The end the walk traces from: camera, light or rule (see `render --hslt-direction`).
+    #[arg(long, value_name = "DIR", default_value = "camera", value_parser = ["camera", "light", "rule"])]
+    pub direction: String,
 }
 
 #[derive(Args, Debug)]
@@ -162,6 +181,10 @@ pub struct RenderArgs {
     /// specular ones by the manifold perturbation (0 treats every glossy vertex as diffuse).
     #[arg(long, value_name = "ALPHA", default_value_t = 0.1)]
     pub specular_threshold: f32,
+    /// HSLT: the end the half-vector mutation's Newton walk traces from: camera, light, or rule (the
+    /// end whose adjacent vertex is smoother).
+    #[arg(long, value_name = "DIR", default_value = "camera", value_parser = ["camera", "light", "rule"])]
+    pub hslt_direction: String,
     /// PSSMLT: probability of a large step (an independent new sample) per mutation.
     #[arg(long, value_name = "P", default_value_t = 0.3)]
     pub p_large: f64,
@@ -210,6 +233,10 @@ fn parse_define(s: &str) -> Result<(String, String), String> {
     }
 }
 
+pub(crate) fn parse_hslt_direction(name: &str) -> anyhow::Result<TraceDirection> {
+    TraceDirection::parse(name).map_err(|e| anyhow!("--hslt-direction: {e}"))
+}
+
 fn parse_accel(name: &str) -> anyhow::Result<AccelKind> {
     match name {
         "embree" => Ok(AccelKind::Embree),
@@ -233,6 +260,7 @@ pub fn run(cli: Cli) -> anyhow::Result<i32> {
         Command::Compare(args) => report::run_compare(args),
         Command::Reference(args) => report::run_reference(args),
         Command::PlotHalfvector(args) => plot_halfvector::run(args),
+        Command::Stability(args) => run_stability(args),
     }
 }
 
@@ -331,6 +359,7 @@ fn run_render(args: RenderArgs) -> anyhow::Result<i32> {
         bail!("--specular-threshold must be a roughness ≥ 0");
     }
     settings.mutation.specular_threshold = args.specular_threshold;
+    settings.mutation.halfvector.direction = parse_hslt_direction(&args.hslt_direction)?;
     let integrator = integrators::make_with(kind, &settings);
     let options = RenderOptions {
         spp: args.spp.or(if args.time.is_some() { None } else { Some(scene.spp) }),
@@ -582,9 +611,22 @@ fn run_bench_integrators(args: BenchIntegratorsArgs) -> anyhow::Result<i32> {
     Ok(0)
 }
 
+fn run_stability(args: StabilityArgs) -> anyhow::Result<i32> {
+    use crate::stability::{self, Effort};
+    let known: Vec<usize> = stability::cases().iter().map(|c| c.number).collect();
+    if let Some(bad) = args.case.iter().find(|n| !known.contains(n)) {
+        bail!("--case {bad}: no such stability case (known: {known:?})");
+    }
+    let effort = if args.quick { Effort::Quick } else { Effort::Full };
+    let runs = stability::run(effort, &args.case);
+    print!("{}", stability::table(&runs));
+    Ok(if runs.iter().all(|r| r.report.passed()) { 0 } else { 1 })
+}
+
 fn run_bench_hslt(args: BenchHsltArgs) -> anyhow::Result<i32> {
     let scene = load(&args.scene, AccelKind::Embree)?;
-    print!("{}", crate::bench::bench_hslt(&scene, args.proposals, args.repeats)?);
+    let direction = parse_hslt_direction(&args.direction)?;
+    print!("{}", crate::bench::bench_hslt(&scene, args.proposals, args.repeats, direction)?);
     Ok(0)
 }
 

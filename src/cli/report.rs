@@ -2,7 +2,7 @@
 //! `hslt reference` (long checkpointed renders that can be resumed). Both drive integrators only
 //! through `Integrator::render` and its snapshot hook, so every integrator `IntegratorKind` knows works.
 
-use super::{load, metadata, parse_accel, thread_pool, SceneArgs};
+use super::{load, metadata, parse_accel, parse_hslt_direction, thread_pool, SceneArgs};
 use crate::image::{read_exr_metadata, read_image, write_image, ImageBuf, Metadata};
 use crate::integrators::{self, DepthLimits, IntegratorKind};
 use crate::render::{RenderOptions, RenderStats, Snapshot, SnapshotHook};
@@ -51,6 +51,9 @@ pub struct CompareArgs {
     /// Seed of all random streams.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// HSLT: the end the half-vector mutation's walk traces from (see `render --hslt-direction`).
+    #[arg(long, value_name = "DIR", default_value = "camera", value_parser = ["camera", "light", "rule"])]
+    pub hslt_direction: String,
     /// Ray-query backend.
     #[arg(long, default_value = "embree")]
     pub accel: String,
@@ -181,6 +184,8 @@ pub fn run_compare(args: CompareArgs) -> anyhow::Result<i32> {
     let total = Duration::from_secs_f64(args.time);
     let times = report::log_spaced_times(total, args.snapshots);
     let limits = depth_limits(&scene);
+    let mut settings = integrators::IntegratorSettings::new(limits, scene.integrator.hide_emitters);
+    settings.mutation.halfvector.direction = parse_hslt_direction(&args.hslt_direction)?;
     let reference = Arc::new(reference);
 
     let mut rows: Vec<ErrorRow> = Vec::new();
@@ -190,7 +195,7 @@ pub fn run_compare(args: CompareArgs) -> anyhow::Result<i32> {
         if !args.quiet {
             eprintln!("{name}: rendering for {} s", args.time);
         }
-        let integrator = integrators::make(*kind, limits, scene.integrator.hide_emitters);
+        let integrator = integrators::make_with(*kind, &settings);
         let snapshot_rows: Arc<Mutex<Vec<ErrorRow>>> = Arc::default();
         let sink = {
             let (rows, reference, name, eps) =

@@ -213,6 +213,10 @@ impl Integrator for PathMlt {
         let mutation_names: Vec<String> =
             self.settings.mutations.iter().map(|(k, w)| format!("{}:{w}", k.name())).collect();
         metadata.push(("hslt.mlt.mutation_set".into(), mutation_names.join(",")));
+        if self.settings.mutations.iter().any(|(k, _)| *k == MutationKind::HalfVector) {
+            let direction = self.settings.mutation.halfvector.direction.name();
+            metadata.push(("hslt.mlt.hslt.direction".into(), direction.into()));
+        }
         let mut film = film;
         if cancel.load(Ordering::Relaxed) || !(b > 0.0 && b.is_finite()) {
             stats.interrupted = cancel.load(Ordering::Relaxed);

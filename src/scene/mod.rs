@@ -108,6 +108,17 @@ impl Scene {
         builder.finish(path, &root, options)
     }
 
+    /// Builds a scene from XML text; `path` names it in errors and anchors relative file references.
+    pub fn load_str(text: &str, path: &Path, options: &LoadOptions) -> anyhow::Result<Scene> {
+        let root = xml::parse_str(text, path, &options.defines)?;
+        let base_dir = path.parent().unwrap_or(Path::new(".")).to_path_buf();
+        let mut builder = Builder::default();
+        for (_, obj) in root.objects() {
+            builder.add(obj, &base_dir)?;
+        }
+        builder.finish(path, &root, options)
+    }
+
     pub fn accel(&self) -> &dyn RayQuery {
         self.accel.as_ref()
     }

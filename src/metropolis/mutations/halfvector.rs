@@ -1,6 +1,7 @@
 //! HSLT's half-vector space mutation (Kaplanyan, Hanika and Dachsbacher 2014, Sec. 5–6; digest 2.4–2.7):
 //! Möbius-shifted Phong steps of every inner vertex's half vector, sized by roughness and image-space
 //! stratification, a Newton walk there with x_0 and x_k fixed, weighed in half-vector measure f_A/|det J|.
+//! The walk's ray casts start from the camera or the light end (Sec. 5.1, digest 2.9, `TraceDirection`).
 
 use glam::{DMat2, DVec2, DVec3};
 
@@ -8,7 +9,7 @@ use super::super::chain::{Failure, Mutation, MutationStats, Proposal};
 use super::super::path_state::{PathContext, PathState};
 use crate::manifold::{
     bandwidth_shares, invert_block, path_constraints, path_etas, path_geometry, step_sizes,
-    walk_counting_rays, LocalGeometry, StepSizes, WalkSettings,
+    walk_counting_rays, LocalGeometry, StepSizes, WalkError, WalkResult, WalkSettings,
 };
 use crate::path::{PathView, ScatterClass, Vertex, VertexKind};
 use crate::sampling::Sampler;
@@ -29,6 +30,103 @@ pub struct HalfVectorParams {
     /// The image-space step as a fraction of min(width, height) in pixels ([C13]: 2%).
     pub image_step: f64,
     pub walk: WalkSettings,
+    /// Which fixed end the walk's ray casts start from (`--hslt-direction`).
+    pub direction: TraceDirection,
+}
+
+/// Which end of the path the Newton walk's corrector casts its rays from (paper Sec. 5.1: HSLT picks
+/// "whichever is more convenient" per mutation, with an unpublished criterion; digest 2.9).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum TraceDirection {
+    /// Always from the camera x_0 (the reference implementation's only choice).
+    #[default]
+    Camera,
+    /// Always from the emitter end x_k.
+    Light,
+    /// From the end whose adjacent inner vertex is the smoother one (`TraceDirection::start_for`).
+    Rule,
+}
+
+/// The end a particular walk starts from, once `TraceDirection::Rule` has been decided on a path.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum TraceStart {
+    Camera,
+    Light,
+}
+
+impl TraceDirection {
+    pub const ALL: [TraceDirection; 3] =
+        [TraceDirection::Camera, TraceDirection::Light, TraceDirection::Rule];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            TraceDirection::Camera => "camera",
+            TraceDirection::Light => "light",
+            TraceDirection::Rule => "rule",
+        }
+    }
+
+    pub fn parse(name: &str) -> Result<TraceDirection, String> {
+        TraceDirection::ALL
+            .into_iter()
+            .find(|d| d.name() == name)
+            .ok_or_else(|| format!("unknown tracing direction '{name}' (available: camera, light, rule)"))
+    }
+
+    /// The end to trace `path` (an applicable path) from. The rule starts from the end whose adjacent
+    /// inner vertex has the smaller roughness (diffuse counting as 1), the camera on ties. Why: the
+    /// corrector places each vertex with a ray from the already placed previous one, so an error at an
+    /// early vertex tilts every later ray while the last vertex is only joined to the fixed end; the
+    /// smoother vertex takes the smaller half-vector step (steps scale with α), so its linear prediction
+    /// is the more accurate and it makes the better first vertex. On caustic paths (L-glossy-…-diffuse-E)
+    /// this traces from the light, as light tracing does. It reads only the path, so it is deterministic.
+    /// Measured, it is within noise of `Camera` on jewelry, fig17 and fig15 (docs/mlt.md).
+    pub fn start_for(self, path: &[Vertex]) -> TraceStart {
+        match self {
+            TraceDirection::Camera => TraceStart::Camera,
+            TraceDirection::Light => TraceStart::Light,
+            TraceDirection::Rule => {
+                let roughness = |v: &Vertex| bsdf_step(v, 1.0);
+                let n = path.len();
+                if roughness(&path[n - 2]) < roughness(&path[1]) {
+                    TraceStart::Light
+                } else {
+                    TraceStart::Camera
+                }
+            }
+        }
+    }
+}
+
+/// The Newton walk of `path` to `target` (one per inner vertex, camera to light order), with the
+/// corrector's rays cast from the chosen end. From the light it walks the reversed path and reverses
+/// the result: every inner vertex's half vector is the same quantity both ways (reflection is
+/// symmetric in wi, wo; for refraction H~ = wi + η·wo becomes wo + wi/η = H~/η, the same direction, and
+/// frames are per vertex), so the targets, the constraint and its Jacobian (rows and columns reversed
+/// blockwise, the same |det J|) are unchanged, and the walk's side checks and endpoint handling are
+/// symmetric in the two ends.
+pub fn walk_from(
+    scene: &Scene,
+    path: &[Vertex],
+    eta: &[f64],
+    target: &[DVec2],
+    start: TraceStart,
+    settings: &WalkSettings,
+    rays: &mut u64,
+) -> Result<WalkResult, WalkError> {
+    match start {
+        TraceStart::Camera => walk_counting_rays(scene, path, eta, target, settings, rays),
+        TraceStart::Light => {
+            let reversed = |v: &[Vertex]| v.iter().rev().copied().collect::<Vec<_>>();
+            let eta_rev: Vec<f64> = eta.iter().rev().copied().collect();
+            let target_rev: Vec<DVec2> = target.iter().rev().copied().collect();
+            let mut result =
+                walk_counting_rays(scene, &reversed(path), &eta_rev, &target_rev, settings, rays)?;
+            result.path.reverse();
+            result.h.reverse();
+            Ok(result)
+        }
+    }
 }
 
 impl Default for HalfVectorParams {
@@ -40,6 +138,7 @@ impl Default for HalfVectorParams {
             // Per-triangle tangent frames leave residuals of ~1e-4 in h on tessellated meshes: asking
             // for less makes honest walks fail to converge.
             walk: WalkSettings { tolerance: 1e-4, ..WalkSettings::default() },
+            direction: TraceDirection::Camera,
         }
     }
 }
@@ -178,7 +277,7 @@ impl HalfVectorMutation {
 }
 
 /// Largest distance between corresponding inner vertices, relative to the shorter segment at each.
-fn relative_mismatch(a: &[Vertex], b: &[Vertex]) -> f64 {
+pub fn relative_mismatch(a: &[Vertex], b: &[Vertex]) -> f64 {
     (1..a.len() - 1)
         .map(|i| {
             let seg = (a[i].p - a[i - 1].p).length().min((a[i + 1].p - a[i].p).length()) as f64;
@@ -212,11 +311,16 @@ impl<'a> Mutation<PathState, PathContext<'a>> for HalfVectorMutation {
             let u = [rng.next_f64(), rng.next_f64()];
             targets.push(proposal.sample(u).ok_or(Failure::Failed("grazing"))?);
         }
-        let forward = walk_counting_rays(
+        let start_x = self.params.direction.start_for(x);
+        if start_x == TraceStart::Light {
+            stats.add_sum("traced_from_light", 1.0);
+        }
+        let forward = walk_from(
             scene,
             x,
             &prepared_x.eta,
             &targets,
+            start_x,
             &self.params.walk,
             &mut ctx.counters.rays,
         )
@@ -231,11 +335,18 @@ impl<'a> Mutation<PathState, PathContext<'a>> for HalfVectorMutation {
         let prepared_y = self.prepare(scene, &state.vertices, state.film).map_err(Failure::Failed)?;
         // Reversibility: Y's walk to X's half vectors must come back to X, or the map from half vectors
         // to paths is not locally one-to-one here and the densities below would not describe it.
-        let back = walk_counting_rays(
+        // The walk back starts from the end the direction picks for Y, as a proposal from Y would: the
+        // kernel lives in half-vector space and the walk only realises the map h -> path, so T(x->y) is
+        // q_X(h_Y)|det J_Y| times 1{the walk from X's start reaches Y}, and T(y->x) likewise with Y's
+        // start. The forward indicator is 1 by construction and this check makes the backward one 1,
+        // so the ratio below is unchanged. A rule that reads anything but the path (or is random)
+        // would need its probability evaluated on X and Y in the ratio.
+        let back = walk_from(
             scene,
             &state.vertices,
             &prepared_y.eta,
             &prepared_x.h,
+            self.params.direction.start_for(&state.vertices),
             &self.params.walk,
             &mut ctx.counters.rays,
         )

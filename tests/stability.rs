@@ -1,0 +1,18 @@
+//! The fifteen stiff and extreme cases of the HSLT method digest (§5), one test each: every case's
+//! checks (in `hslt::stability`) must pass at the test suite's sample counts. `hslt stability` prints
+//! the same cases, at the table's sample counts, into docs/stability.md.
+
+use hslt::stability::{cases, Effort};
+
+fn check(number: usize) {
+    let case = cases().into_iter().find(|c| c.number == number).expect("no such case");
+    let report = (case.run)(Effort::Quick);
+    eprintln!("case {number} ({}): {}", case.name, report.measured);
+    assert!(report.passed(), "case {number} ({}) failed: {}", case.name, report.failures.join("; "));
+}
+
+#[test]
+fn every_case_is_registered_once() {
+    let numbers: Vec<usize> = cases().iter().map(|c| c.number).collect();
+    assert_eq!(numbers, (1..=15).collect::<Vec<_>>());
+}
