@@ -18,7 +18,7 @@ pub use sampling::{
     bandwidth_shares, beckmann_to_phong, mobius, mobius_inverse, step_sizes, HalfVectorProposal,
     PhongDiskLobe, StepSizes,
 };
-pub use trace::{direction_per_half_vector, scatter_with_half_vector};
+pub use trace::{direction_per_half_vector, log_dirac_factor, scatter_with_half_vector};
 pub use walk::{
     corrector_pass, corrector_pass_counting_rays, walk, walk_counting_rays, CorrectorFailure, WalkError,
     WalkResult, WalkSettings,

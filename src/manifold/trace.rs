@@ -6,6 +6,7 @@
 use glam::{DVec2, DVec3};
 
 use super::constraint::{half_vector, LocalGeometry};
+use crate::path::Vertex;
 
 /// How far the recomputed half vector of a constructed direction may sit from the requested one: the
 /// inversion is closed-form, so anything beyond rounding means a wrong branch (sign or side).
@@ -78,6 +79,20 @@ pub fn direction_per_half_vector(cur: &LocalGeometry, wi: DVec3, wo: DVec3, eta:
     let h = h_raw.try_normalize()?;
     let value = h_raw.length_squared() / (eta_rel * eta_rel * wo.dot(h).abs()) / cur.n.dot(h).abs();
     (value.is_finite() && value > 0.0).then_some(value)
+}
+
+/// Σ ln |dω_o/dh⊥| over the inner vertices of `path` that scatter through a Dirac lobe (`delta`), at
+/// their geometry `g` and index ratios `eta`: the factor between a walk's half-vector coordinates and the
+/// chain's measure, which counts a Dirac vertex's outgoing direction (MEMLT and HSLT share it). `None`
+/// where a factor vanishes or is not finite.
+pub fn log_dirac_factor(path: &[Vertex], g: &[LocalGeometry], eta: &[f64]) -> Option<f64> {
+    let mut sum = 0.0;
+    for i in (1..g.len().saturating_sub(1)).filter(|&i| path[i].delta) {
+        let wi = (g[i - 1].p - g[i].p).normalize();
+        let wo = (g[i + 1].p - g[i].p).normalize();
+        sum += direction_per_half_vector(&g[i], wi, wo, eta[i])?.ln();
+    }
+    sum.is_finite().then_some(sum)
 }
 
 #[cfg(test)]

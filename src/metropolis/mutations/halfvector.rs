@@ -8,7 +8,7 @@ use glam::{DMat2, DVec2, DVec3};
 use super::super::chain::{Failure, Mutation, MutationStats, Proposal};
 use super::super::path_state::{PathContext, PathState};
 use crate::manifold::{
-    bandwidth_shares, invert_block, path_constraints, path_etas, path_geometry, step_sizes,
+    bandwidth_shares, invert_block, log_dirac_factor, path_constraints, path_etas, path_geometry, step_sizes,
     walk_counting_rays, LocalGeometry, StepSizes, WalkError, WalkResult, WalkSettings,
 };
 use crate::path::{PathView, ScatterClass, Vertex, VertexKind};
@@ -152,8 +152,10 @@ pub fn applicable(path: &[Vertex]) -> bool {
         return false;
     }
     let inner = &path[1..n - 1];
-    inner.iter().all(|v| v.kind == VertexKind::Surface && v.smooth && !v.delta)
-        && inner.iter().any(|v| matches!(v.class, ScatterClass::Glossy { .. }))
+    inner
+        .iter()
+        .all(|v| v.kind == VertexKind::Surface && v.smooth && (!v.delta || v.class == ScatterClass::Specular))
+        && inner.iter().any(|v| !v.delta && matches!(v.class, ScatterClass::Glossy { .. }))
 }
 
 /// A path prepared for proposing from it: its half vectors, log|det J| and per-vertex proposal steps.
@@ -164,6 +166,11 @@ pub struct PreparedPath {
     pub h: Vec<DVec2>,
     /// ln |det J|.
     pub log_det: f64,
+    /// Σ ln |dω_o/dh⊥| over the Dirac vertices: their h stays 0 and the chain's measure counts their
+    /// outgoing direction, not h (`manifold::log_dirac_factor`).
+    pub log_dirac: f64,
+    /// The Dirac vertices among x_1 … x_{k-1}: held at h = 0, no step, no kernel factor.
+    pub held: Vec<bool>,
     pub steps: Vec<StepSizes>,
 }
 
@@ -172,7 +179,9 @@ impl PreparedPath {
     /// where the kernel cannot reach them (on or outside the rim, or a grazing centre).
     pub fn log_density(&self, h: &[DVec2]) -> Option<f64> {
         let mut sum = 0.0;
-        for ((step, centre), target) in self.steps.iter().zip(&self.h).zip(h) {
+        for (((step, centre), target), _) in
+            self.steps.iter().zip(&self.h).zip(h).zip(&self.held).filter(|(_, &held)| !held)
+        {
             let q = step.proposal(*centre)?.pdf(*target);
             if !(q > 0.0 && q.is_finite()) {
                 return None;
@@ -182,10 +191,18 @@ impl PreparedPath {
         Some(sum)
     }
 
-    /// Mean step σ over the inner vertices and both axes.
+    /// Mean step σ over the perturbed inner vertices and both axes.
     pub fn mean_step(&self) -> f64 {
-        let total: f64 = self.steps.iter().map(|s| s.sigma.x + s.sigma.y).sum();
-        total / (2 * self.steps.len()).max(1) as f64
+        let free: Vec<&StepSizes> =
+            self.steps.iter().zip(&self.held).filter(|(_, &h)| !h).map(|(s, _)| s).collect();
+        let total: f64 = free.iter().map(|s| s.sigma.x + s.sigma.y).sum();
+        total / (2 * free.len()).max(1) as f64
+    }
+
+    /// ln of the factor T(x→y)/T_H(x→y) that turns the half-vector kernel into the chain's measure:
+    /// |det J| · Π_Dirac |dω_o/dh⊥| (digest 2.4; the Dirac factor as in MEMLT, docs/mlt.md).
+    pub fn log_measure(&self) -> f64 {
+        self.log_det + self.log_dirac
     }
 }
 
@@ -243,6 +260,8 @@ impl HalfVectorMutation {
             return Err("singular");
         }
         let inner = &path[1..path.len() - 1];
+        let held: Vec<bool> = inner.iter().map(|v| v.delta).collect();
+        let log_dirac = log_dirac_factor(path, &geometry, &eta).ok_or("degenerate")?;
         let bandwidths: Vec<f64> = inner.iter().map(|v| bsdf_step(v, self.params.step_scale)).collect();
         let steps = if self.params.stratify {
             let shares = bandwidth_shares(&bandwidths);
@@ -264,7 +283,7 @@ impl HalfVectorMutation {
         } else {
             bandwidths.iter().map(|&bw| step_sizes(bw, DVec2::NAN, DVec2::NAN)).collect()
         };
-        Ok(PreparedPath { eta, h: constraints.h, log_det, steps })
+        Ok(PreparedPath { eta, h: constraints.h, log_det, log_dirac, held, steps })
     }
 
     /// ln T_H(from → to): `from`'s proposal kernel at `to`'s half vectors (both applicable paths of the
@@ -306,7 +325,12 @@ impl<'a> Mutation<PathState, PathContext<'a>> for HalfVectorMutation {
         let prepared_x = self.prepare(scene, x, current.film).map_err(Failure::Failed)?;
         stats.add_sum("step_size", prepared_x.mean_step());
         let mut targets = Vec::with_capacity(prepared_x.h.len());
-        for (step, centre) in prepared_x.steps.iter().zip(&prepared_x.h) {
+        for ((step, centre), &held) in prepared_x.steps.iter().zip(&prepared_x.h).zip(&prepared_x.held) {
+            if held {
+                // A Dirac vertex keeps its specular constraint exactly (h = 0, not X's rounding).
+                targets.push(DVec2::ZERO);
+                continue;
+            }
             let proposal = step.proposal(*centre).ok_or(Failure::Failed("grazing"))?;
             let u = [rng.next_f64(), rng.next_f64()];
             targets.push(proposal.sample(u).ok_or(Failure::Failed("grazing"))?);
@@ -331,7 +355,13 @@ impl<'a> Mutation<PathState, PathContext<'a>> for HalfVectorMutation {
         if PathView::whole(&forward.path).film_position(scene).is_none() {
             return Err(Failure::Failed("outside_image"));
         }
-        let state = PathState::new(scene, forward.path).ok_or(Failure::Failed("zero_contribution"))?;
+        let mut walked = forward.path;
+        // The corrector rebuilds vertices from ray hits; which of them scatter through a Dirac lobe is
+        // the path's structure, which the walk keeps.
+        for (v, old) in walked.iter_mut().zip(x) {
+            v.delta = old.delta;
+        }
+        let state = PathState::new(scene, walked).ok_or(Failure::Failed("zero_contribution"))?;
         let prepared_y = self.prepare(scene, &state.vertices, state.film).map_err(Failure::Failed)?;
         // Reversibility: Y's walk to X's half vectors must come back to X, or the map from half vectors
         // to paths is not locally one-to-one here and the densities below would not describe it.
@@ -361,7 +391,8 @@ impl<'a> Mutation<PathState, PathContext<'a>> for HalfVectorMutation {
             // Y's kernel cannot propose X: the move cannot be reversed, so it is never accepted.
             return Ok(Proposal { state, t_ratio: 0.0 });
         };
-        let log_ratio = backward_density + prepared_x.log_det - forward_density - prepared_y.log_det;
+        let log_ratio =
+            backward_density + prepared_x.log_measure() - forward_density - prepared_y.log_measure();
         let t_ratio = log_ratio.exp();
         if !t_ratio.is_finite() {
             return Err(Failure::Failed("degenerate"));

@@ -22,8 +22,8 @@ use glam::{DVec2, DVec3};
 
 use crate::geometry::{offset_origin, Ray, Vec2, Vec3};
 use crate::manifold::{
-    direction_per_half_vector, half_vector, half_vector_constraint, path_constraints, path_etas,
-    path_geometry, scatter_with_half_vector, walk_counting_rays, LocalGeometry, WalkSettings,
+    half_vector, half_vector_constraint, log_dirac_factor, path_constraints, path_etas, path_geometry,
+    scatter_with_half_vector, walk_counting_rays, LocalGeometry, WalkSettings,
 };
 use crate::metropolis::chain::{Failure, Mutation, MutationStats, Proposal};
 use crate::metropolis::path_state::{PathContext, PathState};
@@ -107,11 +107,7 @@ impl ManifoldPerturbation {
             let constraints = path_constraints(&g[b..=c], &eta[b..=c]).ok()?;
             lq += constraints.jacobian.factor().ok()?.log_det().ln_abs;
         }
-        for i in (1..c).filter(|&i| path[i].delta) {
-            let wi = (g[i - 1].p - g[i].p).normalize();
-            let wo = (g[i + 1].p - g[i].p).normalize();
-            lq += direction_per_half_vector(&g[i], wi, wo, eta[i])?.ln();
-        }
+        lq += log_dirac_factor(&path[..=c], &g, &eta[..=c])?;
         lq.is_finite().then_some(lq)
     }
 }
