@@ -186,20 +186,17 @@ pub fn walk_many_through(
             slots.push(slot);
         }
         batch.cast(accel, settings.batch_rays);
-        live = std::mem::take(&mut live)
-            .into_iter()
-            .zip(&slots)
-            .filter_map(|((j, mut state), slot)| {
-                state.pass.absorb(scene, &state.current, &batch, slot);
-                match state.advance(&jobs[j], settings) {
-                    Some(done) => {
-                        results[j] = Some(done);
-                        None
-                    }
-                    None => Some((j, state)),
+        let mut slot = slots.iter();
+        live.retain_mut(|(j, state)| {
+            state.pass.absorb(scene, &state.current, &batch, slot.next().expect("one slot per live walk"));
+            match state.advance(&jobs[*j], settings) {
+                Some(done) => {
+                    results[*j] = Some(done);
+                    false
                 }
-            })
-            .collect();
+                None => true,
+            }
+        });
     }
     results.into_iter().map(|r| r.expect("every job finishes")).collect()
 }
