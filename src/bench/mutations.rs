@@ -14,6 +14,7 @@ use crate::sampling::Sampler;
 use crate::scene::Scene;
 use glam::DVec2;
 use std::fmt::Write as _;
+use std::hash::{Hash, Hasher};
 use std::sync::atomic::AtomicBool;
 use std::sync::Mutex;
 use std::time::Instant;
@@ -108,16 +109,38 @@ pub fn proposal_walks(
         .collect()
 }
 
-/// One timed pass of all walks, `group` in flight at a time.
-fn run_walks(scene: &Scene, jobs: &[WalkJob], group: usize, settings: &WalkSettings) -> Pass {
-    let mut rays = vec![0; group];
+/// One timed pass of all walks, `group` in flight at a time; with `fingerprints`, also a hash per walk
+/// of its outcome (every bit of the result or the error) and ray count, taken after the clock stops.
+fn run_walks(
+    scene: &Scene,
+    jobs: &[WalkJob],
+    group: usize,
+    settings: &WalkSettings,
+    fingerprints: bool,
+) -> (Pass, Vec<u64>) {
+    let mut rays = vec![0; jobs.len()];
+    let mut results = Vec::with_capacity(jobs.len());
     let start = Instant::now();
-    let mut built = 0;
-    for chunk in jobs.chunks(group) {
-        let results = walk_many(scene, chunk, settings, &mut rays[..chunk.len()]);
-        built += results.iter().filter(|r| r.is_ok()).count();
+    for (chunk, rays) in jobs.chunks(group).zip(rays.chunks_mut(group)) {
+        results.extend(walk_many(scene, chunk, settings, rays));
     }
-    Pass { seconds: start.elapsed().as_secs_f64(), rays: rays.iter().sum(), built }
+    let seconds = start.elapsed().as_secs_f64();
+    let built = results.iter().filter(|r| r.is_ok()).count();
+    // Debug prints floats in shortest round-trip form, so equal text means equal bits.
+    let hashes = if fingerprints {
+        results
+            .iter()
+            .zip(&rays)
+            .map(|(r, n)| {
+                let mut hasher = std::collections::hash_map::DefaultHasher::new();
+                format!("{r:?} {n}").hash(&mut hasher);
+                hasher.finish()
+            })
+            .collect()
+    } else {
+        Vec::new()
+    };
+    (Pass { seconds, rays: rays.iter().sum(), built }, hashes)
 }
 
 /// Keeps every batch of corrector queries, to replay them against the bare backend.
@@ -254,17 +277,24 @@ fn bench_walks_in_flight(scene: &Scene, starts: &[PathState], repeats: usize, ou
     let batched = params.walk;
     let single = WalkSettings { batch_rays: false, ..batched };
     // (label, walks in flight, settings); the first is the single-ray baseline, the second G = 1.
-    let modes: [(&str, usize, WalkSettings); 5] = [
+    // G = 64 with single rays separates the cost of interleaving walks from the packets' effect.
+    let modes: [(&str, usize, WalkSettings); 6] = [
         ("G=1, one ray at a time", 1, single),
         ("G=1, batched", 1, batched),
         ("G=4, batched", 4, batched),
         ("G=16, batched", 16, batched),
         ("G=64, batched", 64, batched),
+        ("G=64, one ray at a time", 64, single),
     ];
     let mut passes: Vec<Vec<Pass>> = modes.iter().map(|_| Vec::new()).collect();
-    for _ in 0..repeats {
+    let mut outcomes: Vec<Vec<u64>> = Vec::new();
+    for repeat in 0..repeats {
         for ((_, group, settings), p) in modes.iter().zip(passes.iter_mut()) {
-            p.push(run_walks(scene, &jobs, *group, settings));
+            let (pass, hashes) = run_walks(scene, &jobs, *group, settings, repeat == 0);
+            p.push(pass);
+            if repeat == 0 {
+                outcomes.push(hashes);
+            }
         }
     }
     let medians: Vec<&Pass> = passes.iter_mut().map(|p| &*median_of(p)).collect();
@@ -292,6 +322,12 @@ fn bench_walks_in_flight(scene: &Scene, starts: &[PathState], repeats: usize, ou
             single_s / p.seconds
         );
     }
+    let differing: Vec<usize> =
+        outcomes.iter().map(|o| o.iter().zip(&outcomes[1]).filter(|(a, b)| a != b).count()).collect();
+    let _ = writeln!(
+        out,
+        "walks whose result or ray count differs in any bit from G=1 batched, per mode: {differing:?}"
+    );
     // The same queries replayed against the bare backend: Embree's own packet gain on these rays,
     // without the walks' arithmetic around it.
     let _ = writeln!(out, "replayed corrector queries, batch API over single rays (median of {repeats}):");
