@@ -343,8 +343,8 @@ pub fn corrector_pass_counting_rays(
 /// (1 ≤ i < k) casts the rays that place vertex i, row k the visibility rays to the fixed end x_k.
 struct CorrectorPass {
     fractions: Vec<f64>,
-    /// `predicted[c][i - 1]`: where candidate c's inner vertex i should land.
-    predicted: Vec<Vec<Vec3>>,
+    /// `predicted[c * (k - 1) + i - 1]`: where candidate c's inner vertex i should land.
+    predicted: Vec<Vec3>,
     candidates: Vec<Result<Vec<Vertex>, CorrectorFailure>>,
     /// The row whose rays are next; 0 for the idle pass before a walk's first iteration.
     row: usize,
@@ -456,7 +456,11 @@ impl CorrectorPass {
 
     fn new(current: &[Vertex], fractions: Vec<f64>, predicted: impl Fn(usize, f64) -> Vec3) -> CorrectorPass {
         let k = current.len() - 1;
-        let predicted = fractions.iter().map(|&f| (1..k).map(|i| predicted(i, f)).collect()).collect();
+        let predicted = fractions
+            .iter()
+            .flat_map(|&f| (1..k).map(move |i| (i, f)))
+            .map(|(i, f)| predicted(i, f))
+            .collect();
         let candidates = fractions.iter().map(|_| Ok(vec![current[0]])).collect();
         CorrectorPass { fractions, predicted, candidates, row: 1, len: current.len(), owners: Vec::new() }
     }
@@ -496,7 +500,7 @@ impl CorrectorPass {
                 continue;
             }
             let from = built[i - 1];
-            let target = self.predicted[c][i - 1];
+            let target = self.predicted[c * (k - 1) + i - 1];
             let Some(dir) = (target - from.p).try_normalize() else {
                 *candidate = Err(CorrectorFailure::Missed { vertex: i });
                 continue;
