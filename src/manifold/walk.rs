@@ -241,8 +241,7 @@ impl WalkState {
             return None;
         }
         if self.pass.is_finished() {
-            let pass = std::mem::replace(&mut self.pass, CorrectorPass::idle());
-            if let Err(e) = self.take_best_candidate(job, pass, settings.min_step) {
+            if let Err(e) = self.take_best_candidate(job, settings.min_step) {
                 return Some(Err(e));
             }
             self.iteration += 1;
@@ -262,26 +261,30 @@ impl WalkState {
         let geometry = path_geometry(&self.current);
         // Three step sizes at once, so each corrector row is a batch (digest 2.5's halving, three
         // halvings per pass).
-        let fractions = vec![self.step, self.step * 0.5, self.step * 0.25];
-        self.pass = CorrectorPass::new(&self.current, fractions, |i, fraction| {
+        let fractions = [self.step, self.step * 0.5, self.step * 0.25];
+        self.pass.restart(&self.current, &fractions, |i, fraction| {
             (geometry[i].p + geometry[i].displacement(dx[i - 1] * fraction)).as_vec3()
         });
         None
     }
 
-    /// Moves to the largest step whose candidate lowers the error, or shrinks the step if none does.
-    fn take_best_candidate(
-        &mut self,
-        job: &WalkJob,
-        pass: CorrectorPass,
-        min_step: f64,
-    ) -> Result<(), WalkError> {
-        for (fraction, candidate) in pass.fractions.into_iter().zip(pass.candidates) {
-            let Ok(moved) = candidate else { continue };
-            let Ok(new_constraints) = path_constraints(&path_geometry(&moved), job.eta) else { continue };
+    /// Moves to the largest step whose candidate lowers the error, or shrinks the step if none does;
+    /// leaves the pass idle.
+    fn take_best_candidate(&mut self, job: &WalkJob, min_step: f64) -> Result<(), WalkError> {
+        self.pass.stop();
+        let pass = &mut self.pass;
+        for c in 0..pass.fractions.len() {
+            if pass.status[c].is_err() {
+                continue;
+            }
+            let Ok(new_constraints) = path_constraints(&path_geometry(&pass.built[c]), job.eta) else {
+                continue;
+            };
             let new_error = max_error(&new_constraints.h, job.target);
             if new_error < self.error {
-                self.current = moved;
+                let fraction = pass.fractions[c];
+                // The old iterate's buffer becomes this candidate's for the next pass.
+                std::mem::swap(&mut self.current, &mut pass.built[c]);
                 self.constraints = new_constraints;
                 self.error = new_error;
                 self.errors.push(new_error);
@@ -327,7 +330,8 @@ pub fn corrector_pass_counting_rays(
     batched: bool,
     rays_cast: &mut u64,
 ) -> Vec<Result<Vec<Vertex>, CorrectorFailure>> {
-    let mut pass = CorrectorPass::new(current, fractions.to_vec(), predicted);
+    let mut pass = CorrectorPass::idle();
+    pass.restart(current, fractions, predicted);
     let mut batch = RayBatch::default();
     while pass.is_running() {
         batch.clear();
@@ -336,7 +340,7 @@ pub fn corrector_pass_counting_rays(
         batch.cast(scene.accel(), batched);
         pass.absorb(scene, current, &batch, &slot);
     }
-    pass.candidates
+    pass.built.into_iter().zip(pass.status).map(|(built, status)| status.map(|()| built)).collect()
 }
 
 /// One corrector pass in flight: one candidate path per step fraction, built vertex by vertex. Row i
@@ -345,7 +349,10 @@ struct CorrectorPass {
     fractions: Vec<f64>,
     /// `predicted[c * (k - 1) + i - 1]`: where candidate c's inner vertex i should land.
     predicted: Vec<Vec3>,
-    candidates: Vec<Result<Vec<Vertex>, CorrectorFailure>>,
+    /// Candidate c's vertices so far; only meaningful while `status[c]` is Ok. The buffers are reused
+    /// from pass to pass, so a walk allocates them once.
+    built: Vec<Vec<Vertex>>,
+    status: Vec<Result<(), CorrectorFailure>>,
     /// The row whose rays are next; 0 for the idle pass before a walk's first iteration.
     row: usize,
     /// The path length k + 1, or 0 when idle.
@@ -447,22 +454,39 @@ impl CorrectorPass {
         CorrectorPass {
             fractions: Vec::new(),
             predicted: Vec::new(),
-            candidates: Vec::new(),
+            built: Vec::new(),
+            status: Vec::new(),
             row: 0,
             len: 0,
             owners: Vec::new(),
         }
     }
 
-    fn new(current: &[Vertex], fractions: Vec<f64>, predicted: impl Fn(usize, f64) -> Vec3) -> CorrectorPass {
+    /// Starts a pass from `current` with one candidate per step fraction.
+    fn restart(&mut self, current: &[Vertex], fractions: &[f64], predicted: impl Fn(usize, f64) -> Vec3) {
         let k = current.len() - 1;
-        let predicted = fractions
-            .iter()
-            .flat_map(|&f| (1..k).map(move |i| (i, f)))
-            .map(|(i, f)| predicted(i, f))
-            .collect();
-        let candidates = fractions.iter().map(|_| Ok(vec![current[0]])).collect();
-        CorrectorPass { fractions, predicted, candidates, row: 1, len: current.len(), owners: Vec::new() }
+        self.fractions.clear();
+        self.fractions.extend_from_slice(fractions);
+        self.predicted.clear();
+        self.predicted.extend(
+            fractions.iter().flat_map(|&f| (1..k).map(move |i| (i, f))).map(|(i, f)| predicted(i, f)),
+        );
+        self.built.resize_with(fractions.len(), Vec::new);
+        for built in &mut self.built {
+            built.clear();
+            built.reserve(current.len());
+            built.push(current[0]);
+        }
+        self.status.clear();
+        self.status.resize(fractions.len(), Ok(()));
+        self.row = 1;
+        self.len = current.len();
+    }
+
+    /// Makes the pass idle (neither running nor finished), keeping its buffers.
+    fn stop(&mut self) {
+        self.row = 0;
+        self.len = 0;
     }
 
     fn is_running(&self) -> bool {
@@ -485,8 +509,10 @@ impl CorrectorPass {
         };
         let rays = batch.rays_mut(bucket);
         let start = rays.len();
-        for (c, candidate) in self.candidates.iter_mut().enumerate() {
-            let Ok(built) = candidate else { continue };
+        for (c, (built, status)) in self.built.iter().zip(self.status.iter_mut()).enumerate() {
+            if status.is_err() {
+                continue;
+            }
             if i == k {
                 let (near, end) = (built[k - 1], current[k]);
                 let end_normal = if end.is_surface() { end.ng } else { Vec3::ZERO };
@@ -495,14 +521,14 @@ impl CorrectorPass {
                         rays.push(ray);
                         self.owners.push(c);
                     }
-                    None => *candidate = Err(CorrectorFailure::Occluded),
+                    None => *status = Err(CorrectorFailure::Occluded),
                 }
                 continue;
             }
             let from = built[i - 1];
             let target = self.predicted[c * (k - 1) + i - 1];
             let Some(dir) = (target - from.p).try_normalize() else {
-                *candidate = Err(CorrectorFailure::Missed { vertex: i });
+                *status = Err(CorrectorFailure::Missed { vertex: i });
                 continue;
             };
             let origin = if from.is_surface() { offset_origin(from.p, from.ng, dir) } else { from.p };
@@ -510,7 +536,7 @@ impl CorrectorPass {
             // offset (1e-4 relative) lands that far from the prediction, a noise floor the walk then
             // cannot converge below.
             let Some(dir) = (target - origin).try_normalize() else {
-                *candidate = Err(CorrectorFailure::Missed { vertex: i });
+                *status = Err(CorrectorFailure::Missed { vertex: i });
                 continue;
             };
             rays.push(Ray::new(origin, dir));
@@ -527,7 +553,7 @@ impl CorrectorPass {
         if slot.bucket == Bucket::Visibility {
             let blocked = &batch.occluded[slot.start..slot.start + slot.len];
             for (&c, &blocked) in self.owners.iter().zip(blocked) {
-                let Ok(built) = &mut self.candidates[c] else { continue };
+                let built = &mut self.built[c];
                 built.push(current[k]);
                 let failure = if blocked {
                     Some(CorrectorFailure::Occluded)
@@ -537,7 +563,7 @@ impl CorrectorPass {
                         .map(|vertex| CorrectorFailure::ChangedSide { vertex })
                 };
                 if let Some(failure) = failure {
-                    self.candidates[c] = Err(failure);
+                    self.status[c] = Err(failure);
                 }
             }
             return;
@@ -549,12 +575,8 @@ impl CorrectorPass {
                 Some(si) => Ok(Vertex::surface(scene, &si, current[i].beta)),
             };
             match result {
-                Ok(v) => {
-                    if let Ok(built) = &mut self.candidates[c] {
-                        built.push(v);
-                    }
-                }
-                Err(e) => self.candidates[c] = Err(e),
+                Ok(v) => self.built[c].push(v),
+                Err(e) => self.status[c] = Err(e),
             }
         }
     }
