@@ -203,6 +203,9 @@ fn walks_in_flight_match_single_walks_bit_for_bit_on_jewelry() {
     // Debug prints floats in shortest round-trip form, so equal strings mean equal bits in every vertex
     // field, half vector and error (and equal failure variants). Groups of 7 and 64 put several walks'
     // rays into each 8-wide packet and straddle walks across packets; all at once is the largest batch.
+    // Exact ties between triangles are resolved by Embree's traversal order and so may differ between
+    // batches (`hslt bench hslt` counts 4 such walks in 20 000 at 64 in flight); none of these 300 walks
+    // meets one, and the jobs are deterministic, so this checks the driver's bookkeeping exactly.
     for group in [1, 7, 64, jobs.len()] {
         let together = walk_in_groups(&scene, &jobs, group, &settings);
         for (j, ((a, rays_a), (b, rays_b))) in alone.iter().zip(&together).enumerate() {

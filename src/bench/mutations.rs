@@ -26,6 +26,14 @@ struct Pass {
     built: usize,
 }
 
+impl Pass {
+    /// The table columns of a pass over `n` items: items/s, Mrays/s, built, rays per item.
+    fn columns(&self, n: usize) -> (f64, f64, usize, f64) {
+        let n = n as f64;
+        (n / self.seconds, self.rays as f64 / self.seconds / 1e6, self.built, self.rays as f64 / n)
+    }
+}
+
 fn run_pass(scene: &Scene, bdpt: &Bdpt, starts: &[PathState], batch_rays: bool) -> Pass {
     let defaults = HalfVectorParams::default();
     let params = HalfVectorParams { walk: WalkSettings { batch_rays, ..defaults.walk }, ..defaults };
@@ -255,14 +263,8 @@ pub fn bench_hslt(scene: &Scene, proposals: usize, repeats: usize) -> anyhow::Re
         "corrector rays", "mutations/s", "Mrays/s", "built", "rays/mut."
     );
     for (name, p) in [("batched per pass", b), ("one at a time", s)] {
-        let _ = writeln!(
-            out,
-            "{name:<22} {:>14.0} {:>12.2} {:>10} {:>12.1}",
-            starts.len() as f64 / p.seconds,
-            p.rays as f64 / p.seconds / 1e6,
-            p.built,
-            p.rays as f64 / starts.len() as f64
-        );
+        let (per_s, mrays, built, rays) = p.columns(starts.len());
+        let _ = writeln!(out, "{name:<22} {per_s:>14.0} {mrays:>12.2} {built:>10} {rays:>12.1}");
     }
     let _ = writeln!(out, "speed-up of batched over single-ray casts: {:.3}x", s.seconds / b.seconds);
     bench_walks_in_flight(scene, &starts, repeats, &mut out);
@@ -297,7 +299,7 @@ fn bench_walks_in_flight(scene: &Scene, starts: &[PathState], repeats: usize, ou
             }
         }
     }
-    let medians: Vec<&Pass> = passes.iter_mut().map(|p| &*median_of(p)).collect();
+    let medians: Vec<&Pass> = passes.iter_mut().map(|p| median_of(p)).collect();
     let _ = writeln!(out);
     let _ = writeln!(
         out,
@@ -311,15 +313,11 @@ fn bench_walks_in_flight(scene: &Scene, starts: &[PathState], repeats: usize, ou
     );
     let (single_s, g1_s) = (medians[0].seconds, medians[1].seconds);
     for ((label, _, _), p) in modes.iter().zip(&medians) {
+        let (per_s, mrays, built, rays) = p.columns(jobs.len());
+        let (vs_g1, vs_single) = (g1_s / p.seconds, single_s / p.seconds);
         let _ = writeln!(
             out,
-            "{label:<24} {:>10.0} {:>10.2} {:>10} {:>10.1} {:>9.3}x {:>9.3}x",
-            jobs.len() as f64 / p.seconds,
-            p.rays as f64 / p.seconds / 1e6,
-            p.built,
-            p.rays as f64 / jobs.len() as f64,
-            g1_s / p.seconds,
-            single_s / p.seconds
+            "{label:<24} {per_s:>10.0} {mrays:>10.2} {built:>10} {rays:>10.1} {vs_g1:>9.3}x {vs_single:>9.3}x"
         );
     }
     let differing: Vec<usize> =
