@@ -4,7 +4,7 @@
 
 mod mutations;
 
-pub use mutations::bench_hslt;
+pub use mutations::{bench_hslt, proposal_walks, stationary_starts, ProposalWalk};
 
 use crate::accel::embree::PacketHint;
 use crate::accel::{BvhScene, EmbreeScene, Hit};

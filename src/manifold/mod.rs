@@ -20,6 +20,6 @@ pub use sampling::{
 };
 pub use trace::{direction_per_half_vector, log_dirac_factor, scatter_with_half_vector};
 pub use walk::{
-    corrector_pass, corrector_pass_counting_rays, walk, walk_counting_rays, CorrectorFailure, WalkError,
-    WalkResult, WalkSettings,
+    corrector_pass, corrector_pass_counting_rays, walk, walk_counting_rays, walk_many, walk_many_through,
+    CorrectorFailure, WalkError, WalkJob, WalkResult, WalkSettings,
 };

@@ -144,16 +144,24 @@ impl Scene {
     /// True if the segment from `a` to `b` is blocked; both ends are offset along their normals
     /// (zero normal: no offset, for point lights and the camera).
     pub fn occluded_between(&self, a: Vec3, na: Vec3, b: Vec3, nb: Vec3) -> bool {
+        match Self::shadow_segment(a, na, b, nb) {
+            Some(ray) => self.accel.occluded(&ray),
+            None => true,
+        }
+    }
+
+    /// The shadow ray `occluded_between` casts, for callers that batch them; `None` for a degenerate
+    /// segment (which counts as blocked).
+    pub fn shadow_segment(a: Vec3, na: Vec3, b: Vec3, nb: Vec3) -> Option<Ray> {
         let d = b - a;
         let oa = if na == Vec3::ZERO { a } else { crate::geometry::offset_origin(a, na, d) };
         let ob = if nb == Vec3::ZERO { b } else { crate::geometry::offset_origin(b, nb, -d) };
         let seg = ob - oa;
         let len = seg.length();
         if !(len > 0.0) || !len.is_finite() {
-            return true;
+            return None;
         }
-        let ray = Ray { origin: oa, dir: seg / len, tmin: 0.0, tmax: len * (1.0 - 1e-4) };
-        self.accel.occluded(&ray)
+        Some(Ray { origin: oa, dir: seg / len, tmin: 0.0, tmax: len * (1.0 - 1e-4) })
     }
 
     /// True if anything blocks the ray leaving `p` (normal `n`) along `dir` to infinity.
