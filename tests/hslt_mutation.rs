@@ -33,9 +33,22 @@ fn target(state: &PathState) -> f64 {
     luminance(state.contribution) as f64
 }
 
+/// ln of |det J| · Π_Dirac |dω_o/dh⊥|, the factor between the half-vector kernel and the chain's measure.
 fn ln_det_j(scene: &Scene, path: &[hslt::path::Vertex]) -> f64 {
-    let c = path_constraints(&path_geometry(path), &path_etas(scene, path)).unwrap();
-    c.jacobian.factor().unwrap().log_det().ln_abs
+    let (g, eta) = (path_geometry(path), path_etas(scene, path));
+    let c = path_constraints(&g, &eta).unwrap();
+    c.jacobian.factor().unwrap().log_det().ln_abs + hslt::manifold::log_dirac_factor(path, &g, &eta).unwrap()
+}
+
+/// Any path: the detailed-balance checks draw from the whole stationary distribution.
+fn every_path(_: &PathState) -> bool {
+    true
+}
+
+/// Paths through at least one Dirac vertex. HSLT keeps which vertices are Dirac, so the balance
+/// identities hold on this subset of the stationary distribution too.
+fn through_dirac(x: &PathState) -> bool {
+    x.vertices[1..x.vertices.len() - 1].iter().any(|v| v.delta)
 }
 
 /// What many single proposals from target-distributed paths gave.
@@ -60,6 +73,7 @@ fn sample_proposals(
     draws: usize,
     params: HalfVectorParams,
     seed: u64,
+    keep: fn(&PathState) -> bool,
 ) -> ProposalSample {
     let bdpt = bdpt(scene);
     let seeds = PathSeeds::run(scene, &bdpt, seed, seed_paths, &AtomicBool::new(false));
@@ -70,6 +84,9 @@ fn sample_proposals(
     let mut out = ProposalSample::default();
     for _ in 0..draws {
         let Some(x) = seeds.draw(scene, &bdpt, seed, rng.next_f64()) else { continue };
+        if !keep(&x) {
+            continue;
+        }
         let rays_before = ctx.counters.rays;
         let proposal = mutation.propose(&x, &mut ctx, &mut rng, &mut out.stats);
         // Every applicable proposal walks, and every walk casts rays (at least one corrector pass).
@@ -121,6 +138,7 @@ fn check_detailed_balance(
     rel: &str,
     defines: &[(&str, &str)],
     params: HalfVectorParams,
+    keep: fn(&PathState) -> bool,
 ) -> (MutationStats, usize) {
     let s = scene(rel, defines);
     let started = std::time::Instant::now();
@@ -132,7 +150,7 @@ fn check_detailed_balance(
     let mut total = ProposalSample::default();
     let mut n = 0;
     for pass in 0..passes {
-        let out = sample_proposals(&s, 20_000, 6_000, params, 100 + pass);
+        let out = sample_proposals(&s, 20_000, 6_000, params, 100 + pass, keep);
         per_pass.0.push(out.balance_valid.iter().sum::<f64>() / out.balance_valid.len() as f64);
         per_pass.1.push(out.balance_tail.iter().sum::<f64>() / out.balance_tail.len() as f64);
         n += out.balance_valid.len();
@@ -178,6 +196,7 @@ fn detailed_balance_on_jewelry() {
         "scenes/jewelry/scene.xml",
         &[("resx", "64"), ("resy", "48"), ("max_depth", "4")],
         HalfVectorParams::default(),
+        every_path,
     );
 }
 
@@ -188,6 +207,7 @@ fn detailed_balance_on_jewelry_without_stratification() {
         "scenes/jewelry/scene.xml",
         &[("resx", "64"), ("resy", "48"), ("max_depth", "4")],
         HalfVectorParams { stratify: false, ..HalfVectorParams::default() },
+        every_path,
     );
 }
 
@@ -197,6 +217,7 @@ fn detailed_balance_on_fig15() {
         "scenes/fig15/scene.xml",
         &[("resx", "64"), ("resy", "48"), ("max_depth", "4"), ("roughness", "0.1")],
         HalfVectorParams::default(),
+        every_path,
     );
 }
 
@@ -208,7 +229,24 @@ fn detailed_balance_on_fig15_traced_from_the_light() {
         "scenes/fig15/scene.xml",
         &[("resx", "64"), ("resy", "48"), ("max_depth", "4"), ("roughness", "0.1")],
         HalfVectorParams { direction: TraceDirection::Light, ..HalfVectorParams::default() },
+        every_path,
     );
+}
+
+const GLOSSY_CAUSTIC: &str = "scenes/glossy-caustic/scene.xml";
+
+#[test]
+fn detailed_balance_through_dirac_vertices() {
+    // The glass ball's caustic seen in the rough metal floor: camera, floor (perturbed), two Dirac
+    // refractions held at h = 0, light. Only paths through Dirac vertices are drawn, so every ratio
+    // carries the Dirac factor Π |dω_o/dh⊥|; leaving it out or inverting it breaks the identities.
+    let (stats, n) = check_detailed_balance(
+        GLOSSY_CAUSTIC,
+        &[("resx", "64"), ("resy", "48"), ("max_depth", "4")],
+        HalfVectorParams::default(),
+        through_dirac,
+    );
+    assert!(n > 2000 && stats.sums.get("converged_walks").copied().unwrap_or(0.0) > 1000.0);
 }
 
 #[test]
@@ -222,6 +260,7 @@ fn detailed_balance_on_jewelry_with_the_direction_rule() {
         "scenes/jewelry/scene.xml",
         &[("resx", "64"), ("resy", "48"), ("max_depth", "4")],
         HalfVectorParams { direction: TraceDirection::Rule, ..HalfVectorParams::default() },
+        every_path,
     );
     let from_light = stats.sums.get("traced_from_light").unwrap_or(&0.0) / applicable as f64;
     eprintln!("the rule traced {from_light:.3} of the walks from the light");
@@ -433,6 +472,11 @@ fn check_against_bdpt(rel: &str, defines: &[(&str, &str)]) {
     assert!(d_scaled > 2.5, "the comparison cannot see a 10% error ({d_scaled:.3})");
     let flux_tol = 5.0 * (fm_se * fm_se + fb_se * fb_se).sqrt();
     assert!((fm - fb).abs() <= flux_tol, "total flux {fm:.4} vs BDPT {fb:.4} (± {flux_tol:.4})");
+}
+
+#[test]
+fn hslt_only_chains_reproduce_bdpt_on_the_glossy_caustic() {
+    check_against_bdpt(GLOSSY_CAUSTIC, &[("resx", "32"), ("resy", "24"), ("max_depth", "4")]);
 }
 
 #[test]
@@ -694,7 +738,7 @@ fn grazing_paths_are_rejected_and_counted_never_nan() {
 fn paths_it_does_not_apply_to_are_left_alone() {
     // fig15 seeds include all-diffuse paths (ground and sphere) and glossy ones, the Cornell box paths
     // where the camera sees the light, and the caustic scene paths through a smooth glass ball (Dirac
-    // vertices).
+    // vertices, but no glossy vertex to perturb).
     let mut checked = [0usize; 3];
     for (rel, defines) in [
         ("scenes/fig15/scene.xml", vec![("resx", "32"), ("resy", "24"), ("max_depth", "4")]),
@@ -712,7 +756,11 @@ fn paths_it_does_not_apply_to_are_left_alone() {
             let inner = &x.vertices[1..x.vertices.len() - 1];
             let kind = if inner.is_empty() {
                 0
-            } else if inner.iter().any(|v| v.delta) {
+            } else if inner.iter().any(|v| v.delta)
+                && !inner
+                    .iter()
+                    .any(|v| !v.delta && matches!(v.class, hslt::path::ScatterClass::Glossy { .. }))
+            {
                 1
             } else if inner.iter().all(|v| matches!(v.class, hslt::path::ScatterClass::Diffuse)) {
                 2
@@ -821,7 +869,7 @@ fn acceptance_table() {
         for stratify in [true, false] {
             for step_scale in [0.5, 1.0, 2.0, 4.0] {
                 let params = HalfVectorParams { step_scale, stratify, ..HalfVectorParams::default() };
-                let out = sample_proposals(&s, 40_000, 8_000, params, 77);
+                let out = sample_proposals(&s, 40_000, 8_000, params, 77, every_path);
                 let n = out.balance_valid.len();
                 let sums = &out.stats.sums;
                 println!(

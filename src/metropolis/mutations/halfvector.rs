@@ -143,18 +143,21 @@ impl Default for HalfVectorParams {
     }
 }
 
-/// Whether the mutation applies to a path: at least one inner vertex, all of them smooth, non-Dirac
-/// surface vertices, at least one glossy (all-diffuse paths are the bidirectional mutation's), and an
-/// emitter endpoint with a position (an environment endpoint has none to hold fixed).
+/// Whether the mutation applies to a path: at least one inner vertex, all of them surface vertices that
+/// either scatter through a non-Dirac lobe (perturbed) or are purely specular (Dirac, held at h = 0),
+/// at least one glossy non-Dirac one (all-diffuse paths are the bidirectional mutation's, all-specular
+/// chains the perturbations'), and an emitter endpoint with a position (an environment endpoint has
+/// none to hold fixed).
 pub fn applicable(path: &[Vertex]) -> bool {
     let n = path.len();
     if n < 3 || path[0].kind != VertexKind::Camera || path[n - 1].kind == VertexKind::InfiniteLight {
         return false;
     }
     let inner = &path[1..n - 1];
-    inner
-        .iter()
-        .all(|v| v.kind == VertexKind::Surface && v.smooth && (!v.delta || v.class == ScatterClass::Specular))
+    // `smooth` means the BSDF has a non-Dirac lobe. A Dirac vertex must be purely specular, so that
+    // holding h = 0 keeps it on its only lobe.
+    let walkable = |v: &Vertex| if v.delta { v.class == ScatterClass::Specular } else { v.smooth };
+    inner.iter().all(|v| v.kind == VertexKind::Surface && walkable(v))
         && inner.iter().any(|v| !v.delta && matches!(v.class, ScatterClass::Glossy { .. }))
 }
 
