@@ -16,3 +16,23 @@ fn every_case_is_registered_once() {
     let numbers: Vec<usize> = cases().iter().map(|c| c.number).collect();
     assert_eq!(numbers, (1..=15).collect::<Vec<_>>());
 }
+
+#[test]
+fn case_01_near_specular() {
+    check(1);
+}
+
+#[test]
+fn case_02_very_rough() {
+    check(2);
+}
+
+#[test]
+fn case_03_grazing() {
+    check(3);
+}
+
+#[test]
+fn case_04_long_chains() {
+    check(4);
+}

@@ -177,8 +177,9 @@ impl HalfVectorMutation {
     }
 }
 
-/// Largest distance between corresponding inner vertices, relative to the shorter segment at each.
-fn relative_mismatch(a: &[Vertex], b: &[Vertex]) -> f64 {
+/// Largest distance between corresponding inner vertices, relative to the shorter segment at each
+/// (what the reversibility check compares with `REVERSIBILITY_TOLERANCE`).
+pub fn relative_mismatch(a: &[Vertex], b: &[Vertex]) -> f64 {
     (1..a.len() - 1)
         .map(|i| {
             let seg = (a[i].p - a[i - 1].p).length().min((a[i + 1].p - a[i].p).length()) as f64;
