@@ -36,3 +36,13 @@ fn case_03_grazing() {
 fn case_04_long_chains() {
     check(4);
 }
+
+#[test]
+fn case_05_near_singular_lens() {
+    check(5);
+}
+
+#[test]
+fn case_06_tir_slab() {
+    check(6);
+}

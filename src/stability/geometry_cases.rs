@@ -3,6 +3,7 @@
 //! focus), Newton divergence at total internal reflection, tangent-frame seams and flat shading.
 
 mod chains;
+mod lens;
 mod roughness;
 mod support;
 
@@ -39,6 +40,22 @@ pub fn cases() -> Vec<Case> {
                 "no-pivot block LU as accurate as pivoted dense LU for k = 10…20, Newton capped, every \
                        built proposal confirmed reversible, no NaN",
             run: chains::long_chains,
+        },
+        Case {
+            number: 5,
+            name: "near-singular J (ball-lens focus)",
+            expected:
+                "det J folds at the paraxial focus; walks there fail or meet their targets (never clamped); \
+                       the singularity test is relative (same verdicts at 1e-3 and 1e3 scale)",
+            run: lens::lens_focus,
+        },
+        Case {
+            number: 6,
+            name: "Newton divergence (TIR slab)",
+            expected:
+                "refraction past the critical angle fails cleanly with a reason; every converged walk is \
+                       the requested refraction; iterations capped",
+            run: lens::tir_slab,
         },
     ]
 }

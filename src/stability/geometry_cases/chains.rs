@@ -4,10 +4,10 @@
 
 use std::time::Instant;
 
-use glam::{DMat2, DVec2};
+use glam::DVec2;
 
-use super::support::{draw_paths, relative_mismatch, target, walk_to};
-use crate::manifold::{path_constraints, path_etas, path_geometry, BlockTridiagonal, WalkSettings};
+use super::support::{dense, draw_paths, mul, norm, pivoted_det, relative_mismatch, target, walk_to};
+use crate::manifold::{path_constraints, path_etas, path_geometry, WalkSettings};
 use crate::metropolis::mutations::halfvector::{
     applicable, HalfVectorMutation, HalfVectorParams, REVERSIBILITY_TOLERANCE,
 };
@@ -54,60 +54,6 @@ fn mirror_tube() -> crate::scene::Scene {
     )
 }
 
-/// J as a dense row-major matrix (endpoint couplings left out).
-fn dense(j: &BlockTridiagonal) -> Vec<Vec<f64>> {
-    let n = j.len();
-    let mut m = vec![vec![0.0; 2 * n]; 2 * n];
-    let mut put = |row: usize, col: usize, block: DMat2| {
-        for r in 0..2 {
-            for c in 0..2 {
-                m[2 * row + r][2 * col + c] = block.col(c)[r];
-            }
-        }
-    };
-    for i in 0..n {
-        put(i, i, j.b[i]);
-        if i > 0 {
-            put(i, i - 1, j.a[i]);
-        }
-        if i + 1 < n {
-            put(i, i + 1, j.c[i]);
-        }
-    }
-    m
-}
-
-/// ln|det| by Gaussian elimination with partial pivoting: the reference the block LU without
-/// pivoting is held against.
-fn pivoted_ln_det(mut m: Vec<Vec<f64>>) -> f64 {
-    let n = m.len();
-    let mut ln = 0.0;
-    for k in 0..n {
-        let pivot = (k..n).max_by(|&a, &b| m[a][k].abs().total_cmp(&m[b][k].abs())).unwrap_or(k);
-        m.swap(k, pivot);
-        let p = m[k][k];
-        if p == 0.0 {
-            return f64::NEG_INFINITY;
-        }
-        ln += p.abs().ln();
-        for r in k + 1..n {
-            let f = m[r][k] / p;
-            for c in k..n {
-                m[r][c] -= f * m[k][c];
-            }
-        }
-    }
-    ln
-}
-
-fn mul(m: &[Vec<f64>], x: &[f64]) -> Vec<f64> {
-    m.iter().map(|row| row.iter().zip(x).map(|(a, b)| a * b).sum()).collect()
-}
-
-fn norm(v: &[f64]) -> f64 {
-    v.iter().map(|x| x * x).sum::<f64>().sqrt()
-}
-
 pub fn long_chains(effort: Effort) -> CaseReport {
     let mut report = CaseReport::new();
     let scene = mirror_tube();
@@ -138,7 +84,7 @@ pub fn long_chains(effort: Effort) -> CaseReport {
         let Ok(c) = path_constraints(&path_geometry(&x.vertices), &eta) else { continue };
         let Ok(lu) = c.jacobian.factor() else { continue };
         let m = dense(&c.jacobian);
-        worst_det = worst_det.max((lu.log_det().ln_abs - pivoted_ln_det(m.clone())).abs());
+        worst_det = worst_det.max((lu.log_det().ln_abs - pivoted_det(m.clone()).1).abs());
         compared += 1;
         let rhs: Vec<DVec2> =
             (0..c.jacobian.len()).map(|_| DVec2::new(rng.next_f64() - 0.5, rng.next_f64() - 0.5)).collect();

@@ -4,11 +4,11 @@
 
 use std::sync::atomic::AtomicBool;
 
-use glam::{DVec2, Vec3};
+use glam::{DMat2, DVec2, Vec3};
 
 use crate::geometry::{offset_origin, Ray};
 use crate::integrators::{Bdpt, DepthLimits};
-use crate::manifold::{path_etas, walk, WalkResult, WalkSettings};
+use crate::manifold::{path_etas, walk, BlockTridiagonal, WalkResult, WalkSettings};
 pub use crate::metropolis::mutations::halfvector::relative_mismatch;
 use crate::metropolis::mutations::halfvector::{applicable, HalfVectorMutation, HalfVectorParams};
 use crate::metropolis::{
@@ -330,4 +330,62 @@ impl Drop for TempFile {
     fn drop(&mut self) {
         let _ = std::fs::remove_file(&self.0);
     }
+}
+
+/// J as a dense row-major matrix (endpoint couplings left out).
+pub fn dense(j: &BlockTridiagonal) -> Vec<Vec<f64>> {
+    let n = j.len();
+    let mut m = vec![vec![0.0; 2 * n]; 2 * n];
+    let mut put = |row: usize, col: usize, block: DMat2| {
+        for r in 0..2 {
+            for c in 0..2 {
+                m[2 * row + r][2 * col + c] = block.col(c)[r];
+            }
+        }
+    };
+    for i in 0..n {
+        put(i, i, j.b[i]);
+        if i > 0 {
+            put(i, i - 1, j.a[i]);
+        }
+        if i + 1 < n {
+            put(i, i + 1, j.c[i]);
+        }
+    }
+    m
+}
+
+/// (sign, ln|det|) by Gaussian elimination with partial pivoting: the reference the block LU
+/// without pivoting is held against, and a determinant that exists where the block LU refuses.
+pub fn pivoted_det(mut m: Vec<Vec<f64>>) -> (f64, f64) {
+    let n = m.len();
+    let (mut sign, mut ln) = (1.0, 0.0);
+    for k in 0..n {
+        let pivot = (k..n).max_by(|&a, &b| m[a][k].abs().total_cmp(&m[b][k].abs())).unwrap_or(k);
+        if pivot != k {
+            m.swap(k, pivot);
+            sign = -sign;
+        }
+        let p = m[k][k];
+        if p == 0.0 {
+            return (0.0, f64::NEG_INFINITY);
+        }
+        sign *= p.signum();
+        ln += p.abs().ln();
+        for r in k + 1..n {
+            let f = m[r][k] / p;
+            for c in k..n {
+                m[r][c] -= f * m[k][c];
+            }
+        }
+    }
+    (sign, ln)
+}
+
+pub fn mul(m: &[Vec<f64>], x: &[f64]) -> Vec<f64> {
+    m.iter().map(|row| row.iter().zip(x).map(|(a, b)| a * b).sum()).collect()
+}
+
+pub fn norm(v: &[f64]) -> f64 {
+    v.iter().map(|x| x * x).sum::<f64>().sqrt()
 }
