@@ -46,3 +46,13 @@ fn case_05_near_singular_lens() {
 fn case_06_tir_slab() {
     check(6);
 }
+
+#[test]
+fn case_07_frame_rotation() {
+    check(7);
+}
+
+#[test]
+fn case_08_flat_shading() {
+    check(8);
+}

@@ -3,6 +3,7 @@
 //! focus), Newton divergence at total internal reflection, tangent-frame seams and flat shading.
 
 mod chains;
+mod frames;
 mod lens;
 mod roughness;
 mod support;
@@ -56,6 +57,20 @@ pub fn cases() -> Vec<Case> {
                 "refraction past the critical angle fails cleanly with a reason; every converged walk is \
                        the requested refraction; iterations capped",
             run: lens::tir_slab,
+        },
+        Case {
+            number: 7,
+            name: "tangent-frame discontinuities",
+            expected:
+                "a rotated (u, v) parameterisation gives the same proposals from the same random numbers; \
+                       the same acceptance with rotated or no UVs",
+            run: frames::frame_rotation,
+        },
+        Case {
+            number: 8,
+            name: "flat-shaded geometry",
+            expected: "walks fail more on flat facets, as counted rejections: no NaN, detailed balance holds",
+            run: frames::flat_shading,
         },
     ]
 }
