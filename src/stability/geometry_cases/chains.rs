@@ -6,7 +6,9 @@ use std::time::Instant;
 
 use glam::DVec2;
 
-use super::support::{dense, draw_paths, mul, norm, pivoted_det, relative_mismatch, target, walk_to};
+use super::support::{
+    dense, draw_paths, mul, norm, pinhole_xml, pivoted_det, relative_mismatch, target, walk_to,
+};
 use crate::manifold::{path_constraints, path_etas, path_geometry, WalkSettings};
 use crate::metropolis::mutations::halfvector::{
     applicable, HalfVectorMutation, HalfVectorParams, REVERSIBILITY_TOLERANCE,
@@ -34,16 +36,13 @@ fn mirror_tube() -> crate::scene::Scene {
         wall(r#"<rotate z="1" angle="180" />"#, r#"<translate y="-0.5" z="-4" />"#),
     ]
     .join("\n  ");
+    let sensor = pinhole_xml(100.0, "0, 0, -0.1", "0, 0, -1", "0, 1, 0", (32, 32));
     from_xml(
         "mirror-tube",
         &format!(
             r#"<scene version="3.0.0">
   <integrator type="bdpt"><integer name="max_depth" value="21" /><integer name="rr_depth" value="40" /></integrator>
-  <sensor type="perspective">
-    <float name="fov" value="100" />
-    <transform name="to_world"><lookat origin="0, 0, -0.1" target="0, 0, -1" up="0, 1, 0" /></transform>
-    <film type="hdrfilm"><integer name="width" value="32" /><integer name="height" value="32" /></film>
-  </sensor>
+  {sensor}
   {walls}
   <shape type="rectangle">
     <transform name="to_world"><scale value="0.5" /><translate z="-8" /></transform>

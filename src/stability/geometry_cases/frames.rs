@@ -2,7 +2,9 @@
 //! a rotated (u, v) parameterisation must not change any proposal, a mesh without UVs must behave
 //! alike, and flat-shaded meshes (dn = 0, normal jumps at edges) may fail walks but never bias.
 
-use super::support::{balance, bdpt, hit_towards, hslt_paths, relative_mismatch, run_hslt_chains, TempFile};
+use super::support::{
+    balance, bdpt, hit_towards, hslt_paths, pinhole_xml, relative_mismatch, run_hslt_chains, TempFile,
+};
 use crate::manifold::{path_etas, path_geometry, path_half_vectors};
 use crate::metropolis::mutations::halfvector::{HalfVectorMutation, HalfVectorParams};
 use crate::metropolis::{Failure, Mutation, MutationStats, PathContext, PathState};
@@ -74,16 +76,13 @@ fn low_poly_sphere_obj() -> String {
 
 /// Camera, area light and a diffuse floor around one glossy mesh shape (`shape` holds its XML).
 fn mesh_scene(name: &str, shape: &str, max_depth: u32) -> Scene {
+    let sensor = pinhole_xml(40.0, "0.3, -3.5, 2.5", "0, 0, 0", "0, 0, 1", (32, 24));
     from_xml(
         name,
         &format!(
             r#"<scene version="3.0.0">
   <integrator type="bdpt"><integer name="max_depth" value="{max_depth}" /></integrator>
-  <sensor type="perspective">
-    <float name="fov" value="40" />
-    <transform name="to_world"><lookat origin="0.3, -3.5, 2.5" target="0, 0, 0" up="0, 0, 1" /></transform>
-    <film type="hdrfilm"><integer name="width" value="32" /><integer name="height" value="24" /></film>
-  </sensor>
+  {sensor}
   {shape}
   <shape type="rectangle">
     <transform name="to_world"><scale value="5" /><translate z="-1.2" /></transform>

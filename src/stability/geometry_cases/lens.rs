@@ -4,7 +4,7 @@
 
 use glam::{DVec2, DVec3, Vec3};
 
-use super::support::{cast_path, dense, pinned, pivoted_det, walk_to};
+use super::support::{cast_path, dense, pinhole_xml, pinned, pivoted_det, walk_to};
 use crate::manifold::{
     path_constraints, path_etas, path_geometry, path_half_vectors, WalkError, WalkSettings,
 };
@@ -17,21 +17,18 @@ use crate::stability::{CaseReport, Effort};
 /// A rough glass ball (η = 1.5, α = 0.02) of radius `scale` at the origin; nothing else matters to
 /// the walks, whose endpoints are pinned positions.
 fn ball_lens(scale: f64) -> Scene {
+    let d = 10.0 * scale;
+    let sensor = pinhole_xml(30.0, &format!("0, 0, {d}"), "0, 0, 0", "0, 1, 0", (8, 8));
     from_xml(
         &format!("ball-lens-{scale}"),
         &format!(
             r#"<scene version="3.0.0">
-  <sensor type="perspective">
-    <float name="fov" value="30" />
-    <transform name="to_world"><lookat origin="0, 0, {d}" target="0, 0, 0" up="0, 1, 0" /></transform>
-    <film type="hdrfilm"><integer name="width" value="8" /><integer name="height" value="8" /></film>
-  </sensor>
+  {sensor}
   <shape type="sphere"><float name="radius" value="{scale}" />
     <bsdf type="roughdielectric"><float name="alpha" value="0.02" /><float name="int_ior" value="1.5" /><float name="ext_ior" value="1.0" /></bsdf>
   </shape>
   <emitter type="point"><point name="position" x="0" y="0" z="{d}" /><rgb name="intensity" value="1, 1, 1" /></emitter>
 </scene>"#,
-            d = 10.0 * scale
         ),
     )
 }
@@ -192,20 +189,19 @@ pub fn lens_focus(effort: Effort) -> CaseReport {
 
 /// A rough glass slab (η = 1.5, α = 0.02), 1 thick, below z = 1.
 fn glass_slab() -> Scene {
+    let sensor = pinhole_xml(30.0, "0, 0, 3", "0, 0, 0", "0, 1, 0", (8, 8));
     from_xml(
         "glass-slab",
-        r#"<scene version="3.0.0">
-  <sensor type="perspective">
-    <float name="fov" value="30" />
-    <transform name="to_world"><lookat origin="0, 0, 3" target="0, 0, 0" up="0, 1, 0" /></transform>
-    <film type="hdrfilm"><integer name="width" value="8" /><integer name="height" value="8" /></film>
-  </sensor>
+        &format!(
+            r#"<scene version="3.0.0">
+  {sensor}
   <shape type="cube">
     <transform name="to_world"><scale x="20" y="20" z="0.5" /><translate z="0.5" /></transform>
     <bsdf type="roughdielectric"><float name="alpha" value="0.02" /><float name="int_ior" value="1.5" /><float name="ext_ior" value="1.0" /></bsdf>
   </shape>
   <emitter type="point"><point name="position" x="0" y="0" z="3" /><rgb name="intensity" value="1, 1, 1" /></emitter>
-</scene>"#,
+</scene>"#
+        ),
     )
 }
 

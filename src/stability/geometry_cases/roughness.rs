@@ -4,7 +4,7 @@
 
 use glam::{DMat2, DVec2};
 
-use super::support::{balance, hslt_paths, median_film_move, run_hslt_chains};
+use super::support::{balance, hslt_paths, median_film_move, pinhole_xml, run_hslt_chains};
 use crate::manifold::sampling::MIN_STEP;
 use crate::manifold::{mobius_inverse, path_constraints, path_etas, path_geometry, step_sizes, StepSizes};
 use crate::metropolis::mutations::halfvector::{HalfVectorMutation, HalfVectorParams};
@@ -24,16 +24,13 @@ fn glossy_plane(alpha: f64, distribution: &str, max_depth: u32, wall: bool) -> c
     } else {
         ""
     };
+    let sensor = pinhole_xml(30.0, "0, -4, 3", "0, 0, 0", "0, 0, 1", (32, 24));
     from_xml(
         &format!("glossy-plane-{alpha}"),
         &format!(
             r#"<scene version="3.0.0">
   <integrator type="bdpt"><integer name="max_depth" value="{max_depth}" /></integrator>
-  <sensor type="perspective">
-    <float name="fov" value="30" />
-    <transform name="to_world"><lookat origin="0, -4, 3" target="0, 0, 0" up="0, 0, 1" /></transform>
-    <film type="hdrfilm"><integer name="width" value="32" /><integer name="height" value="24" /></film>
-  </sensor>
+  {sensor}
   <shape type="rectangle">
     <transform name="to_world"><scale value="4" /></transform>
     <bsdf type="roughconductor"><string name="distribution" value="{distribution}" /><float name="alpha" value="{alpha}" /></bsdf>
@@ -241,16 +238,13 @@ fn grazing_plane(elevation_deg: f64) -> crate::scene::Scene {
     // The field of view equals the elevation, so every pixel sees the plane at between half and
     // one and a half times it.
     let fov = elevation_deg.max(1e-3);
+    let sensor = pinhole_xml(fov, &format!("0, {y}, {z}"), "0, 0, 0", "0, 0, 1", (32, 24));
     from_xml(
         &format!("grazing-{elevation_deg}"),
         &format!(
             r#"<scene version="3.0.0">
   <integrator type="bdpt"><integer name="max_depth" value="2" /></integrator>
-  <sensor type="perspective">
-    <float name="fov" value="{fov}" />
-    <transform name="to_world"><lookat origin="0, {y}, {z}" target="0, 0, 0" up="0, 0, 1" /></transform>
-    <film type="hdrfilm"><integer name="width" value="32" /><integer name="height" value="24" /></film>
-  </sensor>
+  {sensor}
   <shape type="rectangle">
     <transform name="to_world"><scale value="20" /></transform>
     <bsdf type="roughconductor"><string name="distribution" value="ggx" /><float name="alpha" value="0.6" /></bsdf>

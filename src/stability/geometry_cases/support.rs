@@ -281,6 +281,19 @@ pub fn balance(
     out
 }
 
+/// The `<sensor>` element of a pinhole camera at `origin` looking at `target` (XML triples), with
+/// a horizontal field of view in degrees and a film of `film` pixels.
+pub fn pinhole_xml(fov: f64, origin: &str, target: &str, up: &str, film: (u32, u32)) -> String {
+    format!(
+        r#"<sensor type="perspective">
+    <float name="fov" value="{fov}" />
+    <transform name="to_world"><lookat origin="{origin}" target="{target}" up="{up}" /></transform>
+    <film type="hdrfilm"><integer name="width" value="{}" /><integer name="height" value="{}" /></film>
+  </sensor>"#,
+        film.0, film.1
+    )
+}
+
 /// A fixed path endpoint at `p` with no surface (a pinned position, as the camera and point lights are).
 pub fn pinned(scene: &Scene, p: Vec3) -> Vertex {
     Vertex { p, ..Vertex::camera(scene) }
@@ -372,10 +385,12 @@ pub fn pivoted_det(mut m: Vec<Vec<f64>>) -> (f64, f64) {
         }
         sign *= p.signum();
         ln += p.abs().ln();
-        for r in k + 1..n {
-            let f = m[r][k] / p;
-            for c in k..n {
-                m[r][c] -= f * m[k][c];
+        let (upper, lower) = m.split_at_mut(k + 1);
+        let pivot_row = &upper[k];
+        for row in lower.iter_mut() {
+            let f = row[k] / p;
+            for (x, y) in row[k..].iter_mut().zip(&pivot_row[k..]) {
+                *x -= f * y;
             }
         }
     }
