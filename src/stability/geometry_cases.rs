@@ -62,8 +62,9 @@ pub fn cases() -> Vec<Case> {
             number: 7,
             name: "tangent-frame discontinuities",
             expected:
-                "a rotated (u, v) parameterisation gives the same proposals from the same random numbers; \
-                       the same acceptance with rotated or no UVs",
+                "a rotated (u, v) parameterisation gives the same proposals from the same random numbers and \
+                 the same image; no-UV meshes the same acceptance; walks at a sphere's uv pole as good as on \
+                 its equator",
             run: frames::frame_rotation,
         },
         Case {

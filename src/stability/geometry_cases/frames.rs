@@ -212,31 +212,34 @@ pub fn frame_rotation(effort: Effort) -> CaseReport {
     let starts = hslt_paths(&scenes[0], 71, effort.scale(8_000, 32_000), effort.scale(300, 1200));
     let params = HalfVectorParams::default();
 
-    // The same paths in the rotated scene: identical positions and contributions, half vectors
-    // rotated by the angle of the parameterisation.
+    // The same paths in the rotated scene: identical positions and contributions, ∂p/∂u turned by
+    // the rotation of the parameterisation, and the half vectors unchanged (the projection frame
+    // follows the normal, `normal_frame_reference`).
     let mut pairs = Vec::new();
-    let (mut worst_f, mut turned, mut compared_h) = (0.0f64, 0usize, 0usize);
+    let (mut worst_f, mut turned, mut worst_h, mut compared_h) = (0.0f64, 0usize, 0.0f64, 0usize);
     for x in &starts {
         let Some(y) = transplant(&scenes[1], x) else { continue };
         let (fx, fy) = (super::support::target(x), super::support::target(&y));
         worst_f = worst_f.max(((fy - fx) / fx).abs());
+        for (a, b) in x.vertices.iter().zip(&y.vertices).filter(|(a, _)| a.shape == 0) {
+            let (da, db) = (a.derivatives.dpdu, b.derivatives.dpdu);
+            turned += usize::from(da.angle_between(db) > 0.5);
+        }
         let h = |s: &Scene, p: &PathState| {
             path_half_vectors(&path_geometry(&p.vertices), &path_etas(s, &p.vertices))
         };
         if let (Ok(ha), Ok(hb)) = (h(&scenes[0], x), h(&scenes[1], &y)) {
             for (a, b) in ha.iter().zip(&hb) {
-                if a.length() > 1e-2 {
-                    compared_h += 1;
-                    turned +=
-                        usize::from((a.length() - b.length()).abs() < 1e-4 && a.angle_to(*b).abs() > 0.5);
-                }
+                compared_h += 1;
+                worst_h = worst_h.max((*a - *b).length());
             }
         }
         pairs.push((x.clone(), y));
     }
+    let on_saddle = pairs.iter().flat_map(|(x, _)| &x.vertices).filter(|v| v.shape == 0).count();
     report.measure(format!(
-        "{} of {} paths rebuilt in the rotated scene, contributions agree to {worst_f:.1e}, {turned} of \
-         {compared_h} saddle half vectors turned by the rotation with |h⊥| kept",
+        "{} of {} paths rebuilt in the rotated scene, contributions agree to {worst_f:.1e}, ∂p/∂u turned \
+         at {turned} of {on_saddle} saddle vertices, {compared_h} half vectors agree to {worst_h:.1e}",
         pairs.len(),
         starts.len()
     ));
@@ -246,12 +249,14 @@ pub fn frame_rotation(effort: Effort) -> CaseReport {
     );
     // f is a function of positions and isotropic BSDFs only: f32 rounding of the rebuilt hits.
     report.check(worst_f < 1e-3, format!("the rotation changes f by {worst_f:e}"));
-    // The rotation of 1.1 rad must show in the coordinates (where the saddle is in the path),
-    // otherwise the comparison below would compare identical computations.
+    // The parameterisations must really differ (by 1.1 rad, distorted by the saddle's slope),
+    // or the comparisons below compare identical inputs.
     report.check(
-        turned * 10 >= compared_h * 9 && compared_h > 0,
-        format!("{turned} of {compared_h} half vectors turned"),
+        turned * 10 >= on_saddle * 9 && on_saddle > 0,
+        format!("∂p/∂u turned at {turned} of {on_saddle} vertices"),
     );
+    // The rebuilt hits differ by f32 rounding (~1e-7 of the scene), which moves h by as much.
+    report.check(worst_h < 1e-5, format!("the rotation changes half vectors by {worst_h:e}"));
 
     // The same random numbers from both: the proposal kernel, the walk and the densities are
     // rotation-equivariant, so the proposals must be the same paths with the same ratio, to the
@@ -321,21 +326,15 @@ pub fn frame_rotation(effort: Effort) -> CaseReport {
          disagreements e.g. {differ:?}",
         pairs.len()
     ));
-    // Within a triangle the kernel is equivariant and the walk's targets mean the same world half
-    // vectors up to the slowly turning relative rotation, so the paths must agree (3% slack for
-    // walks ending just at the tolerance). Across triangle edges they need not: ∂p/∂u is per
-    // triangle, so the frame jumps at every edge, by different angles in the two
-    // parameterisations (the seams of digest 2.8).
+    // Only f32 rounding of the rebuilt vertices separates the two computations; a walk that ends
+    // just at its tolerance or a step-halving decision on a rounding difference may go either way,
+    // one in a hundred.
+    report.check(agree * 100 >= pairs.len() * 99, format!("only {agree} of {} proposals agree", pairs.len()));
     report.check(
-        agree_same_triangles * 100 >= same_triangles * 97 && same_triangles >= 20,
+        agree_same_triangles == same_triangles,
         format!(
             "only {agree_same_triangles} of {same_triangles} proposals within triangles reach the same path"
         ),
-    );
-    report.measure(
-        "gap: frames come from per-triangle ∂p/∂u, so proposals crossing an edge differ between \
-         parameterisations (digest 2.8 (a), a smooth tangent field from the UVs, is not implemented); \
-         the chains' statistics below must still agree",
     );
 
     // Acceptance of HSLT-only chains on the three parameterisations, from the same starts. With
@@ -403,10 +402,16 @@ pub fn frame_rotation(effort: Effort) -> CaseReport {
         format!("acceptance depends on the parameterisation: {rates:?}"),
     );
 
-    // Near a pole of the sphere's (u, v) map ∂p/∂u → 0 and the frame spins around the pole; the
-    // walk must still converge there about as often as on the equator (away from the seam).
+    // Near a pole of the sphere's (u, v) map ∂p/∂u turns from one cap triangle to the next (2π/128
+    // each); a frame built from it stalled 62% of the walks there, against 0.4% on the equator. The
+    // normal-based frame has its own seam where |n·y| crosses 0.9: measured, not judged.
     let mut success = Vec::new();
-    for (label, dir) in [("pole", glam::DVec3::Z), ("equator", glam::DVec3::new(1f64.cos(), 1f64.sin(), 0.0))] {
+    let directions = [
+        ("uv pole", glam::DVec3::Z),
+        ("equator", glam::DVec3::new(0.5f64.cos(), 0.5f64.sin(), 0.0)),
+        ("|n·y| = 0.9 frame switch", glam::DVec3::new(0.19f64.sqrt(), 0.9, 0.0)),
+    ];
+    for (label, dir) in directions {
         let scene = glossy_sphere_seen_from(dir);
         let starts = hslt_paths(&scene, 91, effort.scale(4_000, 16_000), effort.scale(150, 600));
         let run = run_hslt_chains(&scene, &starts, effort.scale(10, 40), params, 2);
@@ -419,11 +424,18 @@ pub fn frame_rotation(effort: Effort) -> CaseReport {
         success.push(run.walk_success());
     }
     // Binomial noise on ~1500 proposals is ~0.01; a frame that breaks at the pole drops the
-    // success far more than the 0.1 allowed.
+    // success far more than the 0.05 allowed.
     report.check(
-        success[0] >= success[1] - 0.1,
-        format!("walks fail at the pole: {:.3} vs {:.3} on the equator", success[0], success[1]),
+        success[0] >= success[1] - 0.05,
+        format!("walks fail at the uv pole: {:.3} vs {:.3} on the equator", success[0], success[1]),
     );
+    if success[2] < success[1] - 0.05 {
+        report.measure(format!(
+            "gap: walks across the normal frame's switch at |n·y| = 0.9 succeed {:.3} against {:.3} (a seam of \
+             the global frame field; frame transport (digest 2.8 b) is not implemented)",
+            success[2], success[1]
+        ));
+    }
     report
 }
 
