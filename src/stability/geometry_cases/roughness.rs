@@ -79,7 +79,7 @@ pub fn near_specular(effort: Effort) -> CaseReport {
     let worst = (ratios[0] - 1.0).abs();
     let spread = ratios.iter().map(|r| (r - ratios[0]).abs()).fold(0.0, f64::max);
     report.measure(format!(
-        "lobe spread for σ = 1e-2…1e-8: |E|z|²/(2σ²/(2+σ²)) − 1| = {worst:.4} ({samples} samples), the same \
+        "lobe spread for σ = 1e-2…1e-8: |E|z|²/(2σ²/(2+σ²)) − 1| = {worst:.1e} ({samples} samples), the same \
          to {spread:.1e} for every σ; {bad_density} non-finite or zero densities"
     ));
     report.check(worst < 0.05, format!("the lobe's spread is off by {worst:.3} of the Phong value"));
