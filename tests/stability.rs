@@ -16,3 +16,43 @@ fn every_case_is_registered_once() {
     let numbers: Vec<usize> = cases().iter().map(|c| c.number).collect();
     assert_eq!(numbers, (1..=15).collect::<Vec<_>>());
 }
+
+#[test]
+fn case_01_near_specular() {
+    check(1);
+}
+
+#[test]
+fn case_02_very_rough() {
+    check(2);
+}
+
+#[test]
+fn case_03_grazing() {
+    check(3);
+}
+
+#[test]
+fn case_04_long_chains() {
+    check(4);
+}
+
+#[test]
+fn case_05_near_singular_lens() {
+    check(5);
+}
+
+#[test]
+fn case_06_tir_slab() {
+    check(6);
+}
+
+#[test]
+fn case_07_frame_rotation() {
+    check(7);
+}
+
+#[test]
+fn case_08_flat_shading() {
+    check(8);
+}

@@ -298,7 +298,8 @@ impl HalfVectorMutation {
     }
 }
 
-/// Largest distance between corresponding inner vertices, relative to the shorter segment at each.
+/// Largest distance between corresponding inner vertices, relative to the shorter segment at each
+/// (what the reversibility check compares with `REVERSIBILITY_TOLERANCE`).
 pub fn relative_mismatch(a: &[Vertex], b: &[Vertex]) -> f64 {
     (1..a.len() - 1)
         .map(|i| {
