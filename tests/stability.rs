@@ -16,3 +16,38 @@ fn every_case_is_registered_once() {
     let numbers: Vec<usize> = cases().iter().map(|c| c.number).collect();
     assert_eq!(numbers, (1..=15).collect::<Vec<_>>());
 }
+
+#[test]
+fn case_09_degenerate_endpoints() {
+    check(9);
+}
+
+#[test]
+fn case_10_index_matched_interfaces() {
+    check(10);
+}
+
+#[test]
+fn case_11_mobius_kernel() {
+    check(11);
+}
+
+#[test]
+fn case_12_detailed_balance() {
+    check(12);
+}
+
+#[test]
+fn case_13_scale_invariance() {
+    check(13);
+}
+
+#[test]
+fn case_14_stuck_chains() {
+    check(14);
+}
+
+#[test]
+fn case_15_f32_against_f64() {
+    check(15);
+}

@@ -1,0 +1,168 @@
+//! Case 13: scale invariance (digest §5.13). The same scene built at 1e-3, 1 and 1e3 times its size
+//! (radiance unchanged, so every pixel is unchanged) must give the half-vector mutation the same
+//! acceptance and failure shares, and HSLT renders the same flux: an absolute epsilon anywhere
+//! (distances, determinants, ray offsets) shows up at one of the ends.
+
+use std::collections::BTreeMap;
+use std::sync::atomic::AtomicBool;
+
+use super::{bdpt_for, mean_se, seeding, target};
+use crate::integrators::Integrator;
+use crate::metropolis::mutations::halfvector::{HalfVectorMutation, HalfVectorParams};
+use crate::metropolis::{Failure, MltSettings, Mutation, MutationKind, MutationStats, PathContext, PathMlt};
+use crate::render::RenderOptions;
+use crate::sampling::Sampler;
+use crate::scene::Scene;
+use crate::stability::scenes::from_xml;
+use crate::stability::{CaseReport, Effort};
+
+const SCALES: [f64; 3] = [1e-3, 1.0, 1e3];
+
+/// A rough metal floor and a rough metal sphere under a small area light, every length times `s`.
+fn scene_xml(s: f64) -> String {
+    let v = |x: f64| x * s;
+    format!(
+        r#"<scene version="3.0.0">
+  <integrator type="bdpt"><integer name="max_depth" value="4" /></integrator>
+  <sensor type="perspective">
+    <float name="fov" value="40" />
+    <float name="near_clip" value="{near}" /><float name="far_clip" value="{far}" />
+    <transform name="to_world"><lookat origin="0, {cy}, {cz}" target="0, 0, {tz}" up="0, 0, 1" /></transform>
+    <film type="hdrfilm"><integer name="width" value="24" /><integer name="height" value="18" /></film>
+  </sensor>
+  <shape type="rectangle">
+    <transform name="to_world"><scale value="{floor}" /></transform>
+    <bsdf type="roughconductor"><string name="distribution" value="beckmann" /><float name="alpha" value="0.15" /></bsdf>
+  </shape>
+  <shape type="sphere">
+    <point name="center" x="{sx}" y="{sy}" z="{sz}" /><float name="radius" value="{r}" />
+    <bsdf type="roughconductor"><string name="distribution" value="beckmann" /><float name="alpha" value="0.1" /></bsdf>
+  </shape>
+  <shape type="rectangle">
+    <transform name="to_world"><scale value="{ls}" /><rotate x="1" angle="180" /><translate x="{lx}" y="{ly}" z="{lz}" /></transform>
+    <emitter type="area"><rgb name="radiance" value="20, 20, 20" /></emitter>
+  </shape>
+</scene>"#,
+        near = v(1e-2),
+        far = v(1e3),
+        cy = v(-5.0),
+        cz = v(2.5),
+        tz = v(0.5),
+        floor = v(4.0),
+        sx = v(0.3),
+        sy = v(0.2),
+        sz = v(0.6),
+        r = v(0.6),
+        ls = v(0.4),
+        lx = v(-1.0),
+        ly = v(0.5),
+        lz = v(3.0),
+    )
+}
+
+/// One proposal from each of `draws` seed paths (the same seed at every scale).
+struct Proposals {
+    applicable: usize,
+    acceptance: Vec<f64>,
+    failed: BTreeMap<&'static str, usize>,
+    invalid: usize,
+}
+
+fn proposals(scene: &Scene, draws: usize) -> Proposals {
+    let bdpt = bdpt_for(scene);
+    let seeds = seeding(scene, &bdpt, 130, 20_000);
+    let mut mutation = HalfVectorMutation::new(HalfVectorParams::default());
+    let mut ctx = PathContext::new(scene, &bdpt);
+    let mut rng = Sampler::new(130, 0, 0);
+    let mut stats = MutationStats::default();
+    let mut out = Proposals { applicable: 0, acceptance: Vec::new(), failed: BTreeMap::new(), invalid: 0 };
+    for _ in 0..draws {
+        let Some(x) = seeds.draw(scene, &bdpt, 130, rng.next_f64()) else { continue };
+        let a = match mutation.propose(&x, &mut ctx, &mut rng, &mut stats) {
+            Err(Failure::NotApplicable) => continue,
+            Err(Failure::Failed(reason)) => {
+                *out.failed.entry(reason).or_default() += 1;
+                0.0
+            }
+            Ok(p) => {
+                let a = target(&p.state) * p.t_ratio / target(&x);
+                if !a.is_finite() || a < 0.0 {
+                    out.invalid += 1;
+                }
+                a.min(1.0)
+            }
+        };
+        out.applicable += 1;
+        out.acceptance.push(a);
+    }
+    out
+}
+
+fn render_flux(scene: &Scene, runs: usize) -> (f64, f64) {
+    let fluxes: Vec<f64> = (0..runs)
+        .map(|run| {
+            let mut settings =
+                MltSettings::for_technique(vec![(MutationKind::HalfVector, 1.0), (MutationKind::Bidirectional, 1.0)]);
+            settings.chains = 256;
+            settings.seed_paths = Some(16_384);
+            let mlt = PathMlt::new("hslt", bdpt_for(scene), settings);
+            let options = RenderOptions { spp: Some(32), seed: 1300 + run as u64, ..Default::default() };
+            let image = mlt.render(scene, &options, &AtomicBool::new(false)).film.to_image();
+            image.data.iter().map(|&v| v as f64).sum::<f64>() / image.data.len() as f64
+        })
+        .collect();
+    mean_se(&fluxes)
+}
+
+pub fn run(effort: Effort) -> CaseReport {
+    let mut report = CaseReport::new();
+    let draws = effort.scale(1500, 12_000);
+    let runs = effort.scale(4, 10);
+    let mut results = Vec::new();
+    for s in SCALES {
+        let scene = from_xml(&format!("scale-{s:e}"), &scene_xml(s));
+        let p = proposals(&scene, draws);
+        let flux = render_flux(&scene, runs);
+        results.push((s, p, flux));
+    }
+    let (_, unit, unit_flux) = &results[1];
+    let (a1, a1_se) = mean_se(&unit.acceptance);
+    for (s, p, (flux, flux_se)) in &results {
+        let (a, a_se) = mean_se(&p.acceptance);
+        let failed: Vec<String> = p
+            .failed
+            .iter()
+            .map(|(k, v)| format!("{k} {:.3}", *v as f64 / p.applicable.max(1) as f64))
+            .collect();
+        report.measure(format!(
+            "scale {s:e}: {} applicable, acceptance {a:.3}±{a_se:.3}, failure shares [{}], flux {flux:.4}±{flux_se:.4}",
+            p.applicable,
+            failed.join(", ")
+        ));
+        report.check(p.invalid == 0, format!("scale {s:e}: {} invalid ratios", p.invalid));
+        report.check(p.applicable > draws / 4, format!("scale {s:e}: only {} applicable proposals", p.applicable));
+        if *s == 1.0 {
+            continue;
+        }
+        // Same seeds at every scale, so the two estimates are positively correlated and the unpaired
+        // 5σ below is conservative; a scale-dependent epsilon changes acceptance by far more (it turns
+        // walks into failures wholesale).
+        let tol = 5.0 * (a_se * a_se + a1_se * a1_se).sqrt();
+        report.check((a - a1).abs() <= tol, format!("scale {s:e}: acceptance {a:.3} vs {a1:.3} at scale 1 (tol {tol:.3})"));
+        for reason in unit.failed.keys().chain(p.failed.keys()) {
+            let share = |q: &Proposals| *q.failed.get(reason).unwrap_or(&0) as f64 / q.applicable.max(1) as f64;
+            let (q, q1) = (share(p), share(unit));
+            let pooled = 0.5 * (q + q1);
+            // Binomial 5σ of the difference of two shares, plus three counts for the discreteness of
+            // rare reasons.
+            let tol = 5.0 * (pooled * (1.0 - pooled) * (1.0 / p.applicable as f64 + 1.0 / unit.applicable as f64)).sqrt()
+                + 3.0 / p.applicable.min(unit.applicable).max(1) as f64;
+            report.check((q - q1).abs() <= tol, format!("scale {s:e}: share of {reason} {q:.4} vs {q1:.4} (tol {tol:.4})"));
+        }
+        let (f1, f1_se) = *unit_flux;
+        // Independent renders: 5σ of the difference of two means over `runs` runs each.
+        let tol = 5.0 * (flux_se * flux_se + f1_se * f1_se).sqrt();
+        report.check((flux - f1).abs() <= tol, format!("scale {s:e}: flux {flux:.4} vs {f1:.4} (tol {tol:.4})"));
+    }
+    report
+}
