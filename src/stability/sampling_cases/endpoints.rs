@@ -5,7 +5,7 @@
 
 use std::collections::BTreeMap;
 
-use super::{bdpt_for, glossy_plane_xml, seeding};
+use super::{bdpt_for, failures, glossy_plane_xml, seeding};
 use crate::metropolis::mutations::halfvector::{HalfVectorMutation, HalfVectorParams};
 use crate::metropolis::{Failure, Mutation, MutationStats, PathContext, PathState};
 use crate::sampling::Sampler;
@@ -115,7 +115,14 @@ pub fn run(effort: Effort) -> CaseReport {
         let (mut valid, mut moved_ends, mut moved_x1, mut off_film) = (0, 0, 0, 0);
         let (w, h) = (scene.film.width as f32, scene.film.height as f32);
         for x in &starts {
-            let Ok(p) = mutation.propose(x, &mut ctx, &mut rng, &mut stats) else { continue };
+            let p = match mutation.propose(x, &mut ctx, &mut rng, &mut stats) {
+                Ok(p) => p,
+                Err(Failure::Failed(reason)) => {
+                    *stats.failed.entry(reason).or_default() += 1;
+                    continue;
+                }
+                Err(Failure::NotApplicable) => continue,
+            };
             let (a, b) = (&x.vertices, &p.state.vertices);
             valid += 1;
             // Bitwise: the mutation must copy the endpoints, not recompute them.
@@ -131,7 +138,8 @@ pub fn run(effort: Effort) -> CaseReport {
         let outside = stats.failed.get("outside_image").copied().unwrap_or(0);
         report.measure(format!(
             "stratified {stratify}: {valid} proposals, endpoints moved {moved_ends}×, x_1 moved {moved_x1}×, \
-             rejected outside the film {outside}×"
+             rejected outside the film {outside}×, failures [{}]",
+            failures(&stats)
         ));
         report.check(moved_ends == 0, format!("pinhole or point light moved in {moved_ends} proposals"));
         report.check(off_film == 0, format!("{off_film} proposals outside the film were not rejected"));

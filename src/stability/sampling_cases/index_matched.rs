@@ -93,8 +93,10 @@ pub fn run(effort: Effort) -> CaseReport {
         paths.len()
     ));
     report.check(matched == paths.len(), "the sheet's constraint must take the unnormalised form");
-    // BDPT traced straight through in f32: |H~| = |wi + wo| is the f32 rounding of two unit vectors.
-    report.check(worst_h < 1e-5, format!("seed paths are off the sheet's solution H~ = 0 by {worst_h:e}"));
+    // BDPT continues each ray from an origin offset along the normal by ~1e-4 of the scene scale, so the
+    // stored vertices bend at the sheet by up to that much (the walk below removes it): 1e-3 is ten
+    // times that, far below a wrong solution (|H~| ~ 1 for reflection).
+    report.check(worst_h < 1e-3, format!("seed paths are off the sheet's solution H~ = 0 by {worst_h:e}"));
     report.check(solved == paths.len(), "J with an index-matched vertex must factorise");
     // Both sides are computed in f64 from the same geometry; 1e-6 allows for a near-singular J only. A
     // factor other than 1 (e.g. dropping |n·ω_o|, the disk measure) is off by O(1) at these angles.
