@@ -1,7 +1,9 @@
 //! Case 14: stuck chains (digest §5.14). Rejection run lengths of chains on a floor that is half rough
 //! metal, half mirror: HSLT alone cannot move a path camera → mirror → light (a Dirac vertex), and the
 //! chain must not force-accept it ([C13] does after 30000 rejections, which biases); mixed with the
-//! bidirectional mutation every such chain moves.
+//! bidirectional mutation every such chain can leave it. The mirror reflects 5%: at full reflectance
+//! the light's mirror image is so much brighter than the rough highlight that the target itself keeps
+//! chains there (80 of 96 mixed chains stayed for 200 steps), which hides the question asked here.
 
 use super::{bdpt_for, seeding};
 use crate::integrators::Bdpt;
@@ -24,7 +26,7 @@ const SCENE: &str = r#"<scene version="3.0.0">
   </sensor>
   <shape type="rectangle">
     <transform name="to_world"><scale x="2" y="4" /><translate x="-2" /></transform>
-    <bsdf type="conductor" />
+    <bsdf type="conductor"><rgb name="specular_reflectance" value="0.05, 0.05, 0.05" /></bsdf>
   </shape>
   <shape type="rectangle">
     <transform name="to_world"><scale x="2" y="4" /><translate x="2" /></transform>
@@ -43,6 +45,11 @@ struct Runs {
     never_moved: usize,
     chains: usize,
     stats: MutationStats,
+    /// Per chain that never moved: the sum of its acceptance probabilities, the expected number of
+    /// moves it had; above 0 the state can be left, it only takes a while.
+    stuck_acceptance: Vec<f64>,
+    /// Per mutation of the mixture, in its order.
+    per_mutation: Vec<MutationStats>,
 }
 
 impl Runs {
@@ -72,7 +79,7 @@ fn chains(
     steps: usize,
 ) -> Runs {
     let mut rng = Sampler::new(14, on_mirror as u64, with_bidir as u64);
-    let mut runs = Runs { lengths: Vec::new(), never_moved: 0, chains: 0, stats: MutationStats::default() };
+    let mut runs = Runs { lengths: Vec::new(), never_moved: 0, chains: 0, stats: MutationStats::default(), per_mutation: Vec::new(), stuck_acceptance: Vec::new() };
     let mut attempts = 0;
     while runs.chains < count && attempts < 200 * count {
         attempts += 1;
@@ -105,9 +112,15 @@ fn chains(
         }
         runs.lengths.push(run);
         runs.never_moved += !moved as usize;
+        if !moved {
+            runs.stuck_acceptance.push(chain.stats().iter().map(|m| m.acceptance_sum).sum());
+        }
         runs.chains += 1;
-        for s in chain.stats() {
+        runs.per_mutation.resize(chain.stats().len(), MutationStats::default());
+        for (i, s) in chain.stats().iter().enumerate() {
             runs.stats.add(s);
+            runs.per_mutation[i].name = s.name;
+            runs.per_mutation[i].add(s);
         }
     }
     runs
@@ -118,7 +131,7 @@ pub fn run(effort: Effort) -> CaseReport {
     let scene = from_xml("stuck-floor", SCENE);
     let bdpt = bdpt_for(&scene);
     let seeds = seeding(&scene, &bdpt, 14, 20_000);
-    let (count, steps) = (effort.scale(96, 512), effort.scale(200, 1000));
+    let (count, steps) = (effort.scale(96, 512), effort.scale(1000, 3000));
 
     let rough = chains(&scene, &bdpt, &seeds, false, false, count, steps);
     report.measure(format!("HSLT only, rough start: {}", rough.describe()));
@@ -135,16 +148,31 @@ pub fn run(effort: Effort) -> CaseReport {
     );
 
     let mixed = chains(&scene, &bdpt, &seeds, true, true, count, steps);
-    let bidir = mixed.stats.proposed - mixed.stats.not_applicable;
+    let bidir = &mixed.per_mutation[1];
     report.measure(format!(
-        "HSLT + bidirectional, mirror start: {} (acceptance of applicable proposals {:.3})",
+        "HSLT + bidirectional, mirror start: {} (bidirectional: {} proposed, {} accepted, {} rejected, {} zero, failed [{}])",
         mixed.describe(),
-        mixed.stats.accepted as f64 / bidir.max(1) as f64
+        bidir.proposed,
+        bidir.accepted,
+        bidir.rejected,
+        bidir.rejected_zero,
+        super::failures(bidir)
     ));
-    // With a per-step move probability p the chance that one of `count` chains stays put for all
-    // `steps` steps is count·(1 − p)^steps; at the measured p (> 0.05) that is < 1e-2 even in the
-    // tests, so every chain must have moved.
+    // The bright mirror image is a state the target wants the chain to linger in, so some chains
+    // stay for all the steps; what must hold is that each had a positive probability of leaving:
+    // Σ a > 0 over its proposals (bidirectional proposals that regrow the emitter can reach it back).
+    let least = mixed.stuck_acceptance.iter().copied().filter(|&a| a > 0.0).fold(f64::INFINITY, f64::min);
+    let zero = mixed.stuck_acceptance.iter().filter(|&&a| a == 0.0).count();
+    report.measure(format!(
+        "of the {} mixed chains that stayed put, {zero} had Σ acceptance 0, the others ≥ {:.1e} (expected moves)",
+        mixed.stuck_acceptance.len(),
+        if least.is_finite() { least } else { 0.0 }
+    ));
     report.check(mixed.chains == count, "too few camera-mirror-light seeds");
-    report.check(mixed.never_moved == 0, format!("{} chains stayed stuck despite the bidirectional mutation", mixed.never_moved));
+    report.check(mixed.never_moved < mixed.chains, "the bidirectional mutation moved no chain off the mirror");
+    report.check(
+        mixed.stuck_acceptance.iter().all(|&a| a > 0.0),
+        "a chain on a mirror path had zero probability of leaving it despite the bidirectional mutation",
+    );
     report
 }
