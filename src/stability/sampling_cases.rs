@@ -24,7 +24,8 @@ pub fn cases() -> Vec<Case> {
         Case {
             number: 9,
             name: "degenerate segments and endpoints",
-            expected: "zero-length edges and x_{k-1} on x_k fail as counted rejections, never NaN; pinhole and \
+            expected:
+                "zero-length edges and x_{k-1} on x_k fail as counted rejections, never NaN; pinhole and \
                        point light stay pinned; environment endpoints are left to other mutations; a pixel \
                        outside the film is a rejection",
             run: endpoints::run,
@@ -39,14 +40,16 @@ pub fn cases() -> Vec<Case> {
         Case {
             number: 11,
             name: "Möbius and kernel validation",
-            expected: "histogram of 10^7 kernel samples matches the pdf for |c| = 0, 0.5, 0.9, 0.999, the pdf \
+            expected:
+                "histogram of 10^7 kernel samples matches the pdf for |c| = 0, 0.5, 0.9, 0.999, the pdf \
                        carries unit mass, q_X(Y) > 0 wherever q_Y(X) > 0",
             run: kernel::run,
         },
         Case {
             number: 12,
             name: "detailed balance on a tiny scene",
-            expected: "stationary histogram of h_1 follows f_H on a glossy plane with point light and pinhole; \
+            expected:
+                "stationary histogram of h_1 follows f_H on a glossy plane with point light and pinhole; \
                        f(X)T(X→Y)a(X→Y) = f(Y)T(Y→X)a(Y→X) for random pairs",
             run: balance::run,
         },

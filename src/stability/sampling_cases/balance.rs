@@ -10,7 +10,9 @@ use crate::geometry::Ray;
 use crate::integrators::Bdpt;
 use crate::manifold::{path_constraints, path_etas, path_geometry, LocalGeometry};
 use crate::metropolis::mutations::halfvector::{HalfVectorMutation, HalfVectorParams};
-use crate::metropolis::{Chain, Mutation, MutationStats, PathContext, PathState, TargetFunction, WeightedMutation};
+use crate::metropolis::{
+    Chain, Mutation, MutationStats, PathContext, PathState, TargetFunction, WeightedMutation,
+};
 use crate::path::Vertex;
 use crate::sampling::Sampler;
 use crate::scene::Scene;
@@ -73,7 +75,8 @@ fn expected_masses(scene: &Scene, x0: &Vertex, x2: &Vertex, grid: usize) -> (Bin
     }
     let peak = points.iter().map(|p| p.1).fold(0.0, f64::max);
     let carrying = points.iter().filter(|p| p.1 > 1e-4 * peak);
-    let (lo, hi) = carrying.fold((DVec2::splat(1.0), DVec2::splat(-1.0)), |(lo, hi), p| (lo.min(p.0), hi.max(p.0)));
+    let (lo, hi) =
+        carrying.fold((DVec2::splat(1.0), DVec2::splat(-1.0)), |(lo, hi), p| (lo.min(p.0), hi.max(p.0)));
     // A margin so half vectors at the edge of the box fall inside.
     let margin = (hi - lo) * 1e-3;
     let bins = Bins { lo: lo - margin, size: (hi - lo + 2.0 * margin) / BINS as f64 };
@@ -98,7 +101,9 @@ fn stationary_histogram(scene: &Scene, bdpt: &Bdpt, effort: Effort, report: &mut
     let (chains, steps) = (effort.scale(256, 1024), effort.scale(30, 60));
     let first = seeding(scene, bdpt, 500, 20_000);
     let mut rng = Sampler::new(500, 0, 0);
-    let start = (0..100).find_map(|_| first.draw(scene, bdpt, 500, rng.next_f64())).expect("the plane reflects light");
+    let start = (0..100)
+        .find_map(|_| first.draw(scene, bdpt, 500, rng.next_f64()))
+        .expect("the plane reflects light");
     if start.vertices.len() != 3 {
         report.check(false, "the tiny scene's paths must be camera → plane → light");
         return;
@@ -117,7 +122,9 @@ fn stationary_histogram(scene: &Scene, bdpt: &Bdpt, effort: Effort, report: &mut
         let mut counts = vec![0.0; BINS * BINS];
         let mut recorded = 0.0;
         for c in 0..chains {
-            let Some(start) = (0..20).find_map(|_| seeds.draw(scene, bdpt, seed, rng.next_f64())) else { continue };
+            let Some(start) = (0..20).find_map(|_| seeds.draw(scene, bdpt, seed, rng.next_f64())) else {
+                continue;
+            };
             let mutation = Box::new(HalfVectorMutation::new(HalfVectorParams::default()));
             let mut chain = Chain::new(
                 start,
@@ -165,7 +172,10 @@ fn stationary_histogram(scene: &Scene, bdpt: &Bdpt, effort: Effort, report: &mut
     ));
     report.check(n_bins >= 10, format!("only {n_bins} populated bins: the histogram checks little"));
     report.check(stats.accepted * 10 > applicable, "the chains hardly move: the histogram is the seeds'");
-    report.check(t2_fh < bound, format!("stationary h_1 differs from f_H: mean t² {t2_fh:.2} (bound {bound:.2})"));
+    report.check(
+        t2_fh < bound,
+        format!("stationary h_1 differs from f_H: mean t² {t2_fh:.2} (bound {bound:.2})"),
+    );
     // Power: the same statistic must tell f_H from the density a ratio without |det J| targets.
     report.check(t2_fa > bound, format!("the histogram cannot tell f_H from f_A in h ({t2_fa:.2})"));
 }

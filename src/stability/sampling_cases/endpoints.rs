@@ -110,7 +110,8 @@ pub fn run(effort: Effort) -> CaseReport {
 
     // Pinned ends and the film boundary, with stratified steps and with the larger BSDF-only steps.
     for stratify in [true, false] {
-        let mut mutation = HalfVectorMutation::new(HalfVectorParams { stratify, ..HalfVectorParams::default() });
+        let mut mutation =
+            HalfVectorMutation::new(HalfVectorParams { stratify, ..HalfVectorParams::default() });
         let mut stats = MutationStats::default();
         let (mut valid, mut moved_ends, mut moved_x1, mut off_film) = (0, 0, 0, 0);
         let (w, h) = (scene.film.width as f32, scene.film.height as f32);
@@ -169,7 +170,8 @@ pub fn run(effort: Effort) -> CaseReport {
         env_paths += 1;
         let rays = env_ctx.counters.rays;
         let result = mutation.propose(&x, &mut env_ctx, &mut rng, &mut stats);
-        env_left_alone += (matches!(result, Err(Failure::NotApplicable)) && env_ctx.counters.rays == rays) as usize;
+        env_left_alone +=
+            (matches!(result, Err(Failure::NotApplicable)) && env_ctx.counters.rays == rays) as usize;
     }
     report.measure(format!(
         "environment endpoint: {env_left_alone} of {env_paths} paths not applicable at no ray cost (gap: [C13] \

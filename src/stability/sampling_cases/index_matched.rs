@@ -6,7 +6,9 @@
 use glam::DVec2;
 
 use super::{bdpt_for, failures, seeding};
-use crate::manifold::{half_vector_constraint, path_constraints, path_etas, path_geometry, walk, WalkSettings};
+use crate::manifold::{
+    half_vector_constraint, path_constraints, path_etas, path_geometry, walk, WalkSettings,
+};
 use crate::metropolis::mutations::halfvector::{HalfVectorMutation, HalfVectorParams};
 use crate::metropolis::{Failure, ManifoldPerturbation, Mutation, MutationStats, PathContext, PathState};
 use crate::path::Vertex;
@@ -79,7 +81,9 @@ pub fn run(effort: Effort) -> CaseReport {
     // The constraint at the sheet: unnormalised, at its solution, with an invertible Jacobian.
     let (mut matched, mut solved, mut worst_h, mut worst_identity) = (0, 0, 0.0f64, 0.0f64);
     for x in &paths {
-        let Ok(c) = path_constraints(&path_geometry(&x.vertices), &path_etas(&scene, &x.vertices)) else { continue };
+        let Ok(c) = path_constraints(&path_geometry(&x.vertices), &path_etas(&scene, &x.vertices)) else {
+            continue;
+        };
         matched += c.index_matched[0] as usize;
         worst_h = worst_h.max(c.h[0].length());
         solved += c.jacobian.factor().is_ok() as usize;
@@ -100,7 +104,10 @@ pub fn run(effort: Effort) -> CaseReport {
     report.check(solved == paths.len(), "J with an index-matched vertex must factorise");
     // Both sides are computed in f64 from the same geometry; 1e-6 allows for a near-singular J only. A
     // factor other than 1 (e.g. dropping |n·ω_o|, the disk measure) is off by O(1) at these angles.
-    report.check(worst_identity < 1e-6, format!("f_H identity with the index-matched factor off by {worst_identity:e}"));
+    report.check(
+        worst_identity < 1e-6,
+        format!("f_H identity with the index-matched factor off by {worst_identity:e}"),
+    );
 
     // The Newton walk through the sheet: target 0 there, a perturbed target on the plane.
     let settings = WalkSettings { tolerance: 1e-4, ..WalkSettings::default() };
@@ -115,7 +122,8 @@ pub fn run(effort: Effort) -> CaseReport {
         converged += 1;
         iterations += result.iterations;
         // Straight through: x_1 on the segment x_0 → x_2, relative to its length.
-        let (a, b, p) = (result.path[0].p.as_dvec3(), result.path[2].p.as_dvec3(), result.path[1].p.as_dvec3());
+        let (a, b, p) =
+            (result.path[0].p.as_dvec3(), result.path[2].p.as_dvec3(), result.path[1].p.as_dvec3());
         let along = (b - a).normalize();
         let off_line = ((p - a) - along * (p - a).dot(along)).length() / (b - a).length();
         worst_line = worst_line.max(off_line);
@@ -127,7 +135,10 @@ pub fn run(effort: Effort) -> CaseReport {
     ));
     // Walks of ~0.05 in h on a plane from an exact start: nearly all converge (a tenth may leave the
     // view's geometry or stall); the converged ones meet |H~| < 1e-4, i.e. the kink is below ~1e-4.
-    report.check(converged * 10 >= tried * 9, format!("only {converged} of {tried} walks through the sheet converged"));
+    report.check(
+        converged * 10 >= tried * 9,
+        format!("only {converged} of {tried} walks through the sheet converged"),
+    );
     report.check(worst_line < 1e-4, format!("a walked path bends at the null interface by {worst_line:e}"));
 
     // The mutations: HSLT leaves these paths to others (a Dirac vertex, hence no step share at all);
@@ -142,7 +153,9 @@ pub fn run(effort: Effort) -> CaseReport {
         let r = hslt.propose(x, &mut ctx, &mut rng, &mut hslt_stats);
         left_alone += (matches!(r, Err(Failure::NotApplicable)) && ctx.counters.rays == rays) as usize;
         match memlt.propose(x, &mut ctx, &mut rng, &mut memlt_stats) {
-            Ok(p) if p.t_ratio.is_finite() && p.t_ratio >= 0.0 && p.state.contribution.is_finite() => memlt_valid += 1,
+            Ok(p) if p.t_ratio.is_finite() && p.t_ratio >= 0.0 && p.state.contribution.is_finite() => {
+                memlt_valid += 1
+            }
             Ok(_) => memlt_invalid += 1,
             Err(Failure::Failed(reason)) => *memlt_stats.failed.entry(reason).or_default() += 1,
             Err(Failure::NotApplicable) => memlt_stats.not_applicable += 1,

@@ -108,7 +108,8 @@ pub fn run(effort: Effort) -> CaseReport {
             // The window: a box around the bulk of 4000 pilot samples (the Möbius map squeezes the lobe
             // by ~(1 − |c|²) near the rim, so a fixed window would put it in a handful of bins).
             let mut rng = Sampler::from_seed(900 + ci as u64);
-            let pilot: Vec<DVec2> = (0..4000).filter_map(|_| p.sample([rng.next_f64(), rng.next_f64()])).collect();
+            let pilot: Vec<DVec2> =
+                (0..4000).filter_map(|_| p.sample([rng.next_f64(), rng.next_f64()])).collect();
             let lo = pilot.iter().fold(DVec2::splat(1.0), |a, w| a.min(*w)).max(DVec2::splat(-1.0));
             let hi = pilot.iter().fold(DVec2::splat(-1.0), |a, w| a.max(*w)).min(DVec2::splat(1.0));
             let h = histogram(&p, lo, hi, per_lobe, 1000 + 10 * ci as u64 + li as u64);
@@ -118,7 +119,10 @@ pub fn run(effort: Effort) -> CaseReport {
             let bound = 1.0 + 5.0 * (2.0 / h.dof as f64).sqrt();
             report.check(
                 h.chi2_per_dof < bound,
-                format!("|c| = {radius}, lobe {li}: χ²/dof = {:.3} over {} bins (bound {bound:.3})", h.chi2_per_dof, h.dof),
+                format!(
+                    "|c| = {radius}, lobe {li}: χ²/dof = {:.3} over {} bins (bound {bound:.3})",
+                    h.chi2_per_dof, h.dof
+                ),
             );
             // The pdf's mass in the window equals the share of samples that fell there: binomial
             // noise √(p(1−p)/N) (at most 1.3e-3 in the tests) times five, plus 1e-4 for the midpoint
@@ -128,7 +132,10 @@ pub fn run(effort: Effort) -> CaseReport {
             let mass_error = (h.mass - h.inside).abs();
             report.check(
                 mass_error < 5.0 * sigma + 1e-4,
-                format!("|c| = {radius}, lobe {li}: pdf mass in window {:.5} vs sample share {:.5}", h.mass, h.inside),
+                format!(
+                    "|c| = {radius}, lobe {li}: pdf mass in window {:.5} vs sample share {:.5}",
+                    h.mass, h.inside
+                ),
             );
             worst_chi2 = worst_chi2.max(h.chi2_per_dof);
             worst_mass = worst_mass.max(mass_error);
@@ -153,7 +160,8 @@ pub fn run(effort: Effort) -> CaseReport {
         let n = |rng: &mut Sampler| 10f64.powf(5.0 * rng.next_f64()) - 1.0;
         PhongDiskLobe::new(n(rng), n(rng))
     };
-    let (mut tried, mut forward_zero, mut reverse_underflow, mut reverse_hole) = (0usize, 0usize, 0usize, 0usize);
+    let (mut tried, mut forward_zero, mut reverse_underflow, mut reverse_hole) =
+        (0usize, 0usize, 0usize, 0usize);
     let mut highest_underflow_log = f64::NEG_INFINITY;
     for _ in 0..pairs {
         let x = DVec2::from_angle(2.0 * PI * rng.next_f64()) * 0.999 * rng.next_f64().sqrt();
@@ -183,7 +191,10 @@ pub fn run(effort: Effort) -> CaseReport {
     ));
     report.check(tried > pairs / 2, "too few pairs sampled");
     report.check(forward_zero == 0, format!("{forward_zero} sampled points have no forward density"));
-    report.check(reverse_hole == 0, format!("{reverse_hole} pairs have no reverse density: asymmetric support"));
+    report.check(
+        reverse_hole == 0,
+        format!("{reverse_hole} pairs have no reverse density: asymmetric support"),
+    );
     // An f64 density reads 0 only below e^-745; anything above would be a genuine hole.
     report.check(
         reverse_underflow == 0 || highest_underflow_log < -700.0,

@@ -10,7 +10,8 @@ use super::{bdpt_for, mean_se, seeding, target};
 use crate::manifold::{path_constraints, path_etas, path_geometry, BlockTridiagonal};
 use crate::metropolis::mutations::halfvector::{HalfVectorMutation, HalfVectorParams};
 use crate::metropolis::{
-    Chain, Failure, Mutation, MutationStats, PathContext, PathState, Proposal, TargetFunction, WeightedMutation,
+    Chain, Failure, Mutation, MutationStats, PathContext, PathState, Proposal, TargetFunction,
+    WeightedMutation,
 };
 use crate::path::Vertex;
 use crate::sampling::Sampler;
@@ -80,12 +81,14 @@ pub fn run(effort: Effort) -> CaseReport {
     let mut ctx = PathContext::new(&scene, &bdpt);
     let mut rng = Sampler::new(15, 0, 0);
     let mut stats = MutationStats::default();
-    let (mut differences, mut det_errors, mut unrepresentable, mut inner) = (Vec::new(), Vec::new(), 0, 0usize);
+    let (mut differences, mut det_errors, mut unrepresentable, mut inner) =
+        (Vec::new(), Vec::new(), 0, 0usize);
     for _ in 0..effort.scale(2000, 20_000) {
         let Some(x) = seeds.draw(&scene, &bdpt, 15, rng.next_f64()) else { continue };
         let Ok(p) = mutation.propose(&x, &mut ctx, &mut rng, &mut stats) else { continue };
         let r64 = target(&p.state) * p.t_ratio / target(&x);
-        let r32 = target(&p.state) * f32_ratio(&scene, &x.vertices, &p.state.vertices, p.t_ratio) / target(&x);
+        let r32 =
+            target(&p.state) * f32_ratio(&scene, &x.vertices, &p.state.vertices, p.t_ratio) / target(&x);
         differences.push(r32.min(1.0) - r64.min(1.0));
         for path in [&x.vertices, &p.state.vertices] {
             match ln_dets(&scene, path) {
@@ -96,7 +99,8 @@ pub fn run(effort: Effort) -> CaseReport {
         inner = inner.max(x.vertices.len() - 2);
     }
     det_errors.sort_by(f64::total_cmp);
-    let pick = |q: f64| det_errors.get(((det_errors.len() as f64 - 1.0) * q) as usize).copied().unwrap_or(0.0);
+    let pick =
+        |q: f64| det_errors.get(((det_errors.len() as f64 - 1.0) * q) as usize).copied().unwrap_or(0.0);
     let (shift, shift_se) = mean_se(&differences);
     report.measure(format!(
         "{} proposals (up to {inner} inner vertices): |ln det J_f32 − ln det J_f64| median {:.1e}, p99 {:.1e}, max \
@@ -153,7 +157,8 @@ pub fn run(effort: Effort) -> CaseReport {
         acceptance_gap.push(rate(&b) - rate(&a));
     }
     first_divergence.sort_unstable();
-    let median = first_divergence.get(first_divergence.len() / 2).map_or("none".to_string(), |s| s.to_string());
+    let median =
+        first_divergence.get(first_divergence.len() / 2).map_or("none".to_string(), |s| s.to_string());
     let (gap, gap_se) = mean_se(&acceptance_gap);
     report.measure(format!(
         "{pairs} chain pairs × {steps} steps: accept/reject sequences parted in {} (median step {median}), identical in \
@@ -161,6 +166,9 @@ pub fn run(effort: Effort) -> CaseReport {
         first_divergence.len()
     ));
     // Chain pairs are independent: 5σ of the mean of the paired acceptance gaps.
-    report.check(gap.abs() <= 5.0 * gap_se, format!("f32 chains accept {gap:.2e} ± {gap_se:.2e} more than f64 ones"));
+    report.check(
+        gap.abs() <= 5.0 * gap_se,
+        format!("f32 chains accept {gap:.2e} ± {gap_se:.2e} more than f64 ones"),
+    );
     report
 }

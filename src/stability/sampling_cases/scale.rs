@@ -101,8 +101,10 @@ fn proposals(scene: &Scene, draws: usize) -> Proposals {
 fn render_flux(scene: &Scene, runs: usize) -> (f64, f64) {
     let fluxes: Vec<f64> = (0..runs)
         .map(|run| {
-            let mut settings =
-                MltSettings::for_technique(vec![(MutationKind::HalfVector, 1.0), (MutationKind::Bidirectional, 1.0)]);
+            let mut settings = MltSettings::for_technique(vec![
+                (MutationKind::HalfVector, 1.0),
+                (MutationKind::Bidirectional, 1.0),
+            ]);
             settings.chains = 256;
             settings.seed_paths = Some(16_384);
             let mlt = PathMlt::new("hslt", bdpt_for(scene), settings);
@@ -140,7 +142,10 @@ pub fn run(effort: Effort) -> CaseReport {
             failed.join(", ")
         ));
         report.check(p.invalid == 0, format!("scale {s:e}: {} invalid ratios", p.invalid));
-        report.check(p.applicable > draws / 4, format!("scale {s:e}: only {} applicable proposals", p.applicable));
+        report.check(
+            p.applicable > draws / 4,
+            format!("scale {s:e}: only {} applicable proposals", p.applicable),
+        );
         if *s == 1.0 {
             continue;
         }
@@ -148,21 +153,33 @@ pub fn run(effort: Effort) -> CaseReport {
         // 5σ below is conservative; a scale-dependent epsilon changes acceptance by far more (it turns
         // walks into failures wholesale).
         let tol = 5.0 * (a_se * a_se + a1_se * a1_se).sqrt();
-        report.check((a - a1).abs() <= tol, format!("scale {s:e}: acceptance {a:.3} vs {a1:.3} at scale 1 (tol {tol:.3})"));
+        report.check(
+            (a - a1).abs() <= tol,
+            format!("scale {s:e}: acceptance {a:.3} vs {a1:.3} at scale 1 (tol {tol:.3})"),
+        );
         for reason in unit.failed.keys().chain(p.failed.keys()) {
-            let share = |q: &Proposals| *q.failed.get(reason).unwrap_or(&0) as f64 / q.applicable.max(1) as f64;
+            let share =
+                |q: &Proposals| *q.failed.get(reason).unwrap_or(&0) as f64 / q.applicable.max(1) as f64;
             let (q, q1) = (share(p), share(unit));
             let pooled = 0.5 * (q + q1);
             // Binomial 5σ of the difference of two shares, plus three counts for the discreteness of
             // rare reasons.
-            let tol = 5.0 * (pooled * (1.0 - pooled) * (1.0 / p.applicable as f64 + 1.0 / unit.applicable as f64)).sqrt()
+            let tol = 5.0
+                * (pooled * (1.0 - pooled) * (1.0 / p.applicable as f64 + 1.0 / unit.applicable as f64))
+                    .sqrt()
                 + 3.0 / p.applicable.min(unit.applicable).max(1) as f64;
-            report.check((q - q1).abs() <= tol, format!("scale {s:e}: share of {reason} {q:.4} vs {q1:.4} (tol {tol:.4})"));
+            report.check(
+                (q - q1).abs() <= tol,
+                format!("scale {s:e}: share of {reason} {q:.4} vs {q1:.4} (tol {tol:.4})"),
+            );
         }
         let (f1, f1_se) = *unit_flux;
         // Independent renders: 5σ of the difference of two means over `runs` runs each.
         let tol = 5.0 * (flux_se * flux_se + f1_se * f1_se).sqrt();
-        report.check((flux - f1).abs() <= tol, format!("scale {s:e}: flux {flux:.4} vs {f1:.4} (tol {tol:.4})"));
+        report.check(
+            (flux - f1).abs() <= tol,
+            format!("scale {s:e}: flux {flux:.4} vs {f1:.4} (tol {tol:.4})"),
+        );
     }
     report
 }

@@ -79,7 +79,14 @@ fn chains(
     steps: usize,
 ) -> Runs {
     let mut rng = Sampler::new(14, on_mirror as u64, with_bidir as u64);
-    let mut runs = Runs { lengths: Vec::new(), never_moved: 0, chains: 0, stats: MutationStats::default(), per_mutation: Vec::new(), stuck_acceptance: Vec::new() };
+    let mut runs = Runs {
+        lengths: Vec::new(),
+        never_moved: 0,
+        chains: 0,
+        stats: MutationStats::default(),
+        per_mutation: Vec::new(),
+        stuck_acceptance: Vec::new(),
+    };
     let mut attempts = 0;
     while runs.chains < count && attempts < 200 * count {
         attempts += 1;
@@ -136,7 +143,10 @@ pub fn run(effort: Effort) -> CaseReport {
     let rough = chains(&scene, &bdpt, &seeds, false, false, count, steps);
     report.measure(format!("HSLT only, rough start: {}", rough.describe()));
     report.check(rough.chains == count, "too few rough-floor seeds");
-    report.check(rough.never_moved * 2 < rough.chains, "HSLT hardly moves on the rough floor: nothing to compare");
+    report.check(
+        rough.never_moved * 2 < rough.chains,
+        "HSLT hardly moves on the rough floor: nothing to compare",
+    );
 
     let mirror = chains(&scene, &bdpt, &seeds, true, false, count, steps);
     report.measure(format!("HSLT only, mirror start: {}", mirror.describe()));
@@ -144,7 +154,11 @@ pub fn run(effort: Effort) -> CaseReport {
     // Not applicable on every step and no acceptance at all: nothing forces the chain off the path.
     report.check(
         mirror.never_moved == mirror.chains && mirror.stats.not_applicable == mirror.stats.proposed,
-        format!("a chain HSLT cannot move moved anyway ({} of {})", mirror.chains - mirror.never_moved, mirror.chains),
+        format!(
+            "a chain HSLT cannot move moved anyway ({} of {})",
+            mirror.chains - mirror.never_moved,
+            mirror.chains
+        ),
     );
 
     let mixed = chains(&scene, &bdpt, &seeds, true, true, count, steps);
@@ -169,7 +183,8 @@ pub fn run(effort: Effort) -> CaseReport {
         if least.is_finite() { least } else { 0.0 }
     ));
     report.check(mixed.chains == count, "too few camera-mirror-light seeds");
-    report.check(mixed.never_moved < mixed.chains, "the bidirectional mutation moved no chain off the mirror");
+    report
+        .check(mixed.never_moved < mixed.chains, "the bidirectional mutation moved no chain off the mirror");
     report.check(
         mixed.stuck_acceptance.iter().all(|&a| a > 0.0),
         "a chain on a mirror path had zero probability of leaving it despite the bidirectional mutation",
