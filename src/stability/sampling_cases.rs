@@ -41,7 +41,7 @@ pub fn cases() -> Vec<Case> {
             number: 11,
             name: "Möbius and kernel validation",
             expected:
-                "histogram of 10^7 kernel samples matches the pdf for |c| = 0, 0.5, 0.9, 0.999, the pdf \
+                "histogram of 10^7 kernel samples matches the pdf for centres of modulus 0, 0.5, 0.9, 0.999, the pdf \
                        carries unit mass, q_X(Y) > 0 wherever q_Y(X) > 0",
             run: kernel::run,
         },

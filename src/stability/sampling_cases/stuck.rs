@@ -177,11 +177,14 @@ pub fn run(effort: Effort) -> CaseReport {
     // Σ a > 0 over its proposals (bidirectional proposals that regrow the emitter can reach it back).
     let least = mixed.stuck_acceptance.iter().copied().filter(|&a| a > 0.0).fold(f64::INFINITY, f64::min);
     let zero = mixed.stuck_acceptance.iter().filter(|&&a| a == 0.0).count();
-    report.measure(format!(
-        "of the {} mixed chains that stayed put, {zero} had Σ acceptance 0, the others ≥ {:.1e} (expected moves)",
-        mixed.stuck_acceptance.len(),
-        if least.is_finite() { least } else { 0.0 }
-    ));
+    report.measure(if mixed.stuck_acceptance.is_empty() {
+        "every mixed chain left the mirror path".to_string()
+    } else {
+        format!(
+            "of the {} mixed chains that stayed put, {zero} had Σ acceptance 0, the others ≥ {least:.1e} (expected moves)",
+            mixed.stuck_acceptance.len()
+        )
+    });
     report.check(mixed.chains == count, "too few camera-mirror-light seeds");
     report
         .check(mixed.never_moved < mixed.chains, "the bidirectional mutation moved no chain off the mirror");
