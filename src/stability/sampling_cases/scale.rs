@@ -66,6 +66,8 @@ struct Proposals {
     acceptance: Vec<f64>,
     failed: BTreeMap<&'static str, usize>,
     invalid: usize,
+    /// Newton iterations of each converged forward walk.
+    iterations: Vec<f64>,
 }
 
 fn proposals(scene: &Scene, draws: usize) -> Proposals {
@@ -75,10 +77,22 @@ fn proposals(scene: &Scene, draws: usize) -> Proposals {
     let mut ctx = PathContext::new(scene, &bdpt);
     let mut rng = Sampler::new(130, 0, 0);
     let mut stats = MutationStats::default();
-    let mut out = Proposals { applicable: 0, acceptance: Vec::new(), failed: BTreeMap::new(), invalid: 0 };
+    let mut out = Proposals {
+        applicable: 0,
+        acceptance: Vec::new(),
+        failed: BTreeMap::new(),
+        invalid: 0,
+        iterations: Vec::new(),
+    };
     for _ in 0..draws {
         let Some(x) = seeds.draw(scene, &bdpt, 130, rng.next_f64()) else { continue };
-        let a = match mutation.propose(&x, &mut ctx, &mut rng, &mut stats) {
+        let sum = |stats: &MutationStats, key: &str| stats.sums.get(key).copied().unwrap_or(0.0);
+        let (walks, iterations) = (sum(&stats, "converged_walks"), sum(&stats, "newton_iterations"));
+        let result = mutation.propose(&x, &mut ctx, &mut rng, &mut stats);
+        if sum(&stats, "converged_walks") > walks {
+            out.iterations.push(sum(&stats, "newton_iterations") - iterations);
+        }
+        let a = match result {
             Err(Failure::NotApplicable) => continue,
             Err(Failure::Failed(reason)) => {
                 *out.failed.entry(reason).or_default() += 1;
@@ -136,8 +150,10 @@ pub fn run(effort: Effort) -> CaseReport {
             .iter()
             .map(|(k, v)| format!("{k} {:.3}", *v as f64 / p.applicable.max(1) as f64))
             .collect();
+        let (it, it_se) = mean_se(&p.iterations);
         report.measure(format!(
-            "scale {s:e}: {} applicable, acceptance {a:.3}±{a_se:.3}, failure shares [{}], flux {flux:.4}±{flux_se:.4}",
+            "scale {s:e}: {} applicable, acceptance {a:.3}±{a_se:.3}, Newton iterations {it:.2}±{it_se:.2}, failure \
+             shares [{}], flux {flux:.4}±{flux_se:.4}",
             p.applicable,
             failed.join(", ")
         ));
@@ -173,6 +189,13 @@ pub fn run(effort: Effort) -> CaseReport {
                 format!("scale {s:e}: share of {reason} {q:.4} vs {q1:.4} (tol {tol:.4})"),
             );
         }
+        let (it1, it1_se) = mean_se(&unit.iterations);
+        // Iterations to converge are set by relative tolerances only; 5σ as for the acceptance.
+        let tol = 5.0 * (it_se * it_se + it1_se * it1_se).sqrt();
+        report.check(
+            (it - it1).abs() <= tol,
+            format!("scale {s:e}: {it:.3} Newton iterations vs {it1:.3} at scale 1 (tol {tol:.3})"),
+        );
         let (f1, f1_se) = *unit_flux;
         // Independent renders: 5σ of the difference of two means over `runs` runs each.
         let tol = 5.0 * (flux_se * flux_se + f1_se * f1_se).sqrt();
