@@ -1,9 +1,7 @@
 //! Case 14: stuck chains (digest §5.14). Rejection run lengths of chains on a floor that is half rough
 //! metal, half mirror: HSLT alone cannot move a path camera → mirror → light (a Dirac vertex), and the
 //! chain must not force-accept it ([C13] does after 30000 rejections, which biases); mixed with the
-//! bidirectional mutation every such chain can leave it. The mirror reflects 5%: at full reflectance
-//! the light's mirror image is so much brighter than the rough highlight that the target itself keeps
-//! chains there (80 of 96 mixed chains stayed for 200 steps), which hides the question asked here.
+//! bidirectional mutation every such chain can leave it.
 
 use super::{bdpt_for, seeding};
 use crate::integrators::Bdpt;
@@ -17,6 +15,9 @@ use crate::scene::Scene;
 use crate::stability::scenes::from_xml;
 use crate::stability::{CaseReport, Effort};
 
+/// The mirror reflects 5%: at full reflectance the light's mirror image is so much brighter than the
+/// rough highlight that the target itself keeps chains there (80 of 96 mixed chains stayed for 200
+/// steps), which would hide the question asked here.
 const SCENE: &str = r#"<scene version="3.0.0">
   <integrator type="bdpt"><integer name="max_depth" value="2" /></integrator>
   <sensor type="perspective">
