@@ -183,7 +183,7 @@ fn block_discrepancy(a: &[Vec<f64>], b: &[Vec<f64>]) -> f64 {
 pub fn run(effort: Effort) -> CaseReport {
     let mut report = CaseReport::new();
     let draws = effort.scale(1500, 12_000);
-    let runs = effort.scale(6, 16);
+    let runs = effort.scale(12, 24);
     let mut results = Vec::new();
     for s in SCALES {
         let scene = from_xml(&format!("scale-{s:e}"), &scene_xml(s));
@@ -193,12 +193,11 @@ pub fn run(effort: Effort) -> CaseReport {
         let seed = 1300 + 100 * results.len() as u64;
         let blocks = render_blocks(&scene, runs, seed, Some(&HSLT_MIXTURE));
         let bdpt_blocks = render_blocks(&scene, runs, seed, None);
-        let bidir_blocks = render_blocks(&scene, runs, seed, Some(&[(MutationKind::Bidirectional, 1.0)]));
-        results.push((s, p, blocks, bdpt_blocks, bidir_blocks));
+        results.push((s, p, blocks, bdpt_blocks));
     }
-    let (_, unit, unit_blocks, unit_bdpt, unit_bidir) = &results[1];
+    let (_, unit, unit_blocks, unit_bdpt) = &results[1];
     let (a1, a1_se) = mean_se(&unit.acceptance);
-    for (s, p, blocks, bdpt_blocks, bidir_blocks) in &results {
+    for (s, p, blocks, bdpt_blocks) in &results {
         let (flux, flux_se) = mean_flux(blocks);
         // Rays leave surfaces from an origin offset by 1e-4 · max(|p|, 1) (geometry::ray_epsilon): an
         // absolute floor of 1e-4, i.e. relative to the scene's size (4 s) 2.5e-5 at scale 1 and above,
@@ -260,9 +259,6 @@ pub fn run(effort: Effort) -> CaseReport {
         let (f1, f1_se) = mean_flux(unit_blocks);
         let d = block_discrepancy(blocks, unit_blocks);
         let d_bdpt = block_discrepancy(bdpt_blocks, unit_bdpt);
-        let d_bidir = block_discrepancy(bidir_blocks, unit_bidir);
-        let (fbi, _) = mean_flux(bidir_blocks);
-        let (fbi1, _) = mean_flux(unit_bidir);
         let brighter: Vec<Vec<f64>> =
             unit_blocks.iter().map(|r| r.iter().map(|v| v * 1.1).collect()).collect();
         let d_brighter = block_discrepancy(blocks, &brighter);
@@ -271,8 +267,7 @@ pub fn run(effort: Effort) -> CaseReport {
         report.measure(format!(
             "scale {s:e} against 1: HSLT block discrepancy {d:.2} (≈ 1 when equal; against scale 1 made 10% \
              brighter {d_brighter:.2}), flux {flux:.4}±{flux_se:.4} vs {f1:.4}±{f1_se:.4}; BDPT block discrepancy \
-             {d_bdpt:.2}, flux {fb:.4}±{fb_se:.4} vs {fb1:.4}±{fb1_se:.4}; bidirectional-only chains {d_bidir:.2}, \
-             flux {fbi:.4} vs {fbi1:.4}"
+             {d_bdpt:.2}, flux {fb:.4}±{fb_se:.4} vs {fb1:.4}±{fb1_se:.4}"
         ));
         // The discrepancy is a ratio of sums over 24 blocks with variances from the runs' spread; under
         // "same expectation" it is ~1 and stayed below 2.1 in every null comparison measured here
@@ -288,15 +283,14 @@ pub fn run(effort: Effort) -> CaseReport {
                 format!("scale {s:e}: HSLT flux {flux:.4} vs {f1:.4} (tol {tol:.4})"),
             );
         } else {
-            // GAP, not checked: at 1e-3 the HSLT render (hslt + bidirectional) comes out ~17% dark with
-            // a block discrepancy > 10, and chains of the bidirectional mutation alone do the same,
-            // while BDPT and the half-vector mutation's own numbers above do not change. Not the ray
-            // offset: with geometry::ray_epsilon's floor lowered from 1 to 1e-3 the shift stayed (flux
-            // 0.0265 vs 0.0313, BDPT 0.0305 vs 0.0303). The cause lies outside this case's code and
-            // was not found.
+            // GAP, not checked: at 1e-3 the HSLT render (hslt + bidirectional) came out darker than at
+            // scale 1 in every set of runs tried (flux −17% over 6 runs, −11% over 12, −6% over 16;
+            // discrepancy 14, 6.7, 1.9) while the mutation's own numbers above do not change; BDPT is
+            // 2–3% dark there too. Lowering geometry::ray_epsilon's absolute floor (1 → 1e-3) brought
+            // BDPT back (0.0305 vs 0.0303) but not the HSLT or bidirectional-only renders. Unresolved.
             report.measure(format!(
-                "GAP at scale {s:e}: the HSLT render's image is not scale invariant (discrepancy {d:.2}); \
-                 bidirectional-only chains show the same, BDPT does not"
+                "GAP at scale {s:e}: HSLT render flux {flux:.4}±{flux_se:.4} vs {f1:.4}±{f1_se:.4} at scale 1 \
+                 (block discrepancy {d:.2}, not checked)"
             ));
         }
     }
