@@ -284,9 +284,9 @@ pub fn run(effort: Effort) -> CaseReport {
             );
         } else {
             // GAP, not checked: at 1e-3 the HSLT render (hslt + bidirectional) came out darker than at
-            // scale 1 in every set of runs tried (flux −17% over 6 runs, −11% over 12, −6% over 16;
-            // discrepancy 14, 6.7, 1.9) while the mutation's own numbers above do not change; BDPT is
-            // 2–3% dark there too. Lowering geometry::ray_epsilon's absolute floor (1 → 1e-3) brought
+            // scale 1 in every set of runs tried (flux −17% over 6 runs, −11% over 12, −6% over 16, −8%
+            // over 24 = 2.8σ; discrepancy 14, 6.7, 1.9, 3.9; at 1e3 −5% = 1.5σ over 24) while the
+            // mutation's own numbers above do not change; BDPT is 2–3% dark there too. Lowering geometry::ray_epsilon's absolute floor (1 → 1e-3) brought
             // BDPT back (0.0305 vs 0.0303) but not the HSLT or bidirectional-only renders. Unresolved.
             report.measure(format!(
                 "GAP at scale {s:e}: HSLT render flux {flux:.4}±{flux_se:.4} vs {f1:.4}±{f1_se:.4} at scale 1 \
