@@ -56,3 +56,38 @@ fn case_07_frame_rotation() {
 fn case_08_flat_shading() {
     check(8);
 }
+
+#[test]
+fn case_09_degenerate_endpoints() {
+    check(9);
+}
+
+#[test]
+fn case_10_index_matched_interfaces() {
+    check(10);
+}
+
+#[test]
+fn case_11_mobius_kernel() {
+    check(11);
+}
+
+#[test]
+fn case_12_detailed_balance() {
+    check(12);
+}
+
+#[test]
+fn case_13_scale_invariance() {
+    check(13);
+}
+
+#[test]
+fn case_14_stuck_chains() {
+    check(14);
+}
+
+#[test]
+fn case_15_f32_against_f64() {
+    check(15);
+}

@@ -16,9 +16,9 @@ const INVERSION_TOLERANCE: f64 = 1e-7;
 /// `h` in `cur`'s shading frame (the constraint of `constraint::half_vector`, whose orientation and
 /// relative-index rules it inverts). `wi` is the unit direction towards the previous vertex;
 /// `transmit` selects refraction through the surface (relative index `eta`, the BSDF's
-/// interior/exterior ratio) instead of reflection. `None` for total internal reflection, an
-/// index-matched interface (its unnormalised constraint has no direction to invert), |h| ≥ 1, or a
-/// result on the wrong side of the geometric surface.
+/// interior/exterior ratio) instead of reflection. At an index-matched interface the constraint is
+/// the unnormalised h = P_st(wi + wo), inverted as such. `None` for total internal reflection, |h| ≥ 1
+/// (normalised forms), or a result on the wrong side of the geometric surface.
 pub fn scatter_with_half_vector(
     cur: &LocalGeometry,
     wi: DVec3,
@@ -27,18 +27,27 @@ pub fn scatter_with_half_vector(
     transmit: bool,
 ) -> Option<DVec3> {
     let (s, t) = cur.shading_frame()?;
-    let z2 = 1.0 - h.length_squared();
-    if !(z2 > 0.0) {
-        return None;
-    }
-    let half = s * h.x + t * h.y + cur.n * z2.sqrt();
     let cos_i = cur.ng.dot(wi);
-    let wo = if !transmit {
-        half * (2.0 * wi.dot(half)) - wi
-    } else {
-        let eta_rel = if cos_i > 0.0 { eta } else { 1.0 / eta };
-        if (eta_rel - 1.0).abs() < 1e-9 {
+    let eta_rel = if cos_i > 0.0 { eta } else { 1.0 / eta };
+    let wo = if transmit && (eta_rel - 1.0).abs() < 1e-9 {
+        // Unnormalised: H~ = a + z n with a = s h.x + t h.y and wo = H~ − wi; |wo| = 1 gives
+        // z² − 2 (n·wi) z + |a|² − 2 a·wi = 0. The root near z = 0 (wo ≈ −wi) goes straight through;
+        // the other one is the mirror direction.
+        let a = s * h.x + t * h.y;
+        let b = cur.n.dot(wi);
+        let disc = b * b - a.length_squared() + 2.0 * a.dot(wi);
+        if !(disc >= 0.0) {
             return None;
+        }
+        a + cur.n * (b - disc.sqrt().copysign(b)) - wi
+    } else {
+        let z2 = 1.0 - h.length_squared();
+        if !(z2 > 0.0) {
+            return None;
+        }
+        let half = s * h.x + t * h.y + cur.n * z2.sqrt();
+        if !transmit {
+            return finish(cur, wi, half * (2.0 * wi.dot(half)) - wi, h, eta, transmit);
         }
         // wi + η wo = μ H for a real μ (H is oriented afterwards): |wo| = 1 gives a quadratic in μ.
         // Both roots obey Snell's law tangentially; the physical one crosses the microfacet
@@ -51,6 +60,13 @@ pub fn scatter_with_half_vector(
         let mu = c - disc.sqrt().copysign(c);
         (half * mu - wi) / eta_rel
     };
+    finish(cur, wi, wo, h, eta, transmit)
+}
+
+/// Normalises a constructed direction and checks it: the requested side of the surface, and the
+/// requested half vector when recomputed by the constraint itself.
+fn finish(cur: &LocalGeometry, wi: DVec3, wo: DVec3, h: DVec2, eta: f64, transmit: bool) -> Option<DVec3> {
+    let cos_i = cur.ng.dot(wi);
     let wo = wo.try_normalize()?;
     let same_side = cur.ng.dot(wo) * cos_i > 0.0;
     if same_side == transmit {
@@ -66,6 +82,7 @@ pub fn scatter_with_half_vector(
 /// vector, |H~|² / (η² |ω_o·H|) (Walter et al. 2007; 4 |ω_o·H| for reflection) over |n·H| (the disk
 /// measure is |n·H| dω_H). A Dirac vertex removes its delta in ω_o; manifold coordinates remove it in
 /// h⊥, and this is the factor between the two. `wi`, `wo` are unit directions away from the vertex.
+/// Index-matched transmission: h = P_st(wi + wo) moves as the projection of ω_o, so 1 / |n·ω_o|.
 pub fn direction_per_half_vector(cur: &LocalGeometry, wi: DVec3, wo: DVec3, eta: f64) -> Option<f64> {
     let (cos_i, cos_o) = (cur.ng.dot(wi), cur.ng.dot(wo));
     let eta_rel = if cos_i * cos_o > 0.0 {
@@ -75,6 +92,10 @@ pub fn direction_per_half_vector(cur: &LocalGeometry, wi: DVec3, wo: DVec3, eta:
     } else {
         1.0 / eta
     };
+    if cos_i * cos_o <= 0.0 && (eta_rel - 1.0).abs() < 1e-9 {
+        let value = 1.0 / cur.n.dot(wo).abs();
+        return (value.is_finite() && value > 0.0).then_some(value);
+    }
     let h_raw = wi + wo * eta_rel;
     let h = h_raw.try_normalize()?;
     let value = h_raw.length_squared() / (eta_rel * eta_rel * wo.dot(h).abs()) / cur.n.dot(h).abs();
@@ -147,6 +168,31 @@ mod tests {
         // Reflection below the surface, total internal reflection and grazing shading normals refuse
         // a share of the random requests; most must succeed.
         assert!(built * 2 > tried, "only {built} of {tried} requests built a direction");
+    }
+
+    #[test]
+    fn index_matched_transmission_inverts_the_unnormalised_constraint() {
+        let mut rng = Sampler::from_seed(6);
+        let mut built = 0;
+        for _ in 0..2000 {
+            let cur = vertex(&mut rng);
+            let wi = random_unit(&mut rng);
+            // h = 0 is the straight line; the constraint is the unnormalised one, |h| up to 2.
+            let straight = scatter_with_half_vector(&cur, wi, DVec2::ZERO, 1.0, true);
+            if let Some(wo) = straight {
+                assert!((wo + wi).length() < 1e-12, "{wo:?} vs {wi:?}");
+            }
+            let h = DVec2::new(rng.next_f64() - 0.5, rng.next_f64() - 0.5) * 0.6;
+            if let Some(wo) = scatter_with_half_vector(&cur, wi, h, 1.0, true) {
+                let at = |d: DVec3| LocalGeometry { p: d, ..cur };
+                let got = half_vector(&at(wi), &cur, &at(wo), 1.0).unwrap();
+                assert!((got - h).length() < 1e-7, "h {h:?} -> {got:?}");
+                assert!(cur.ng.dot(wo) * cur.ng.dot(wi) < 0.0);
+                built += 1;
+            }
+        }
+        // Shading normals tilted from ng and |h| up to 0.4 refuse some requests; most must succeed.
+        assert!(built > 1000, "only {built} of 2000 index-matched requests built a direction");
     }
 
     #[test]
