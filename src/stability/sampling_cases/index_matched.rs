@@ -1,11 +1,13 @@
 //! Case 10: index-matched ("null") interfaces (digest §5.10 and 2.1): a smooth dielectric sheet with
 //! int_ior = ext_ior above a glossy plane. Its constraint must take the unnormalised form with the
 //! solution H~ = 0, enter f_H with the factor 1 (the product-of-Jacobians identity of digest 2.4 with
-//! |dω⊥_o/dh| = |n_g·ω_o|/|n·ω_o|), let the Newton walk converge through it, and take no step share.
+//! |dω⊥_o/dh| = |n_g·ω_o|/|n·ω_o|), let the Newton walk converge through it, and take no step share:
+//! HSLT holds it at h = 0 as a Dirac vertex; HSLT and MEMLT keep detailed balance through it.
 
 use glam::DVec2;
 
 use super::{bdpt_for, failures, mean_se, seeding, target};
+use crate::integrators::Bdpt;
 use crate::manifold::{
     direction_per_half_vector, half_vector_constraint, path_constraints, path_etas, path_geometry, walk,
     WalkSettings,
@@ -142,22 +144,17 @@ pub fn run(effort: Effort) -> CaseReport {
     );
     report.check(worst_line < 1e-4, format!("a walked path bends at the null interface by {worst_line:e}"));
 
-    // HSLT leaves these paths to others: the sheet is a Dirac vertex, so it never takes a step share.
-    let mut hslt = HalfVectorMutation::new(HalfVectorParams::default());
-    let mut ctx = PathContext::new(&scene, &bdpt);
-    let mut hslt_stats = MutationStats::default();
-    let mut left_alone = 0;
-    for x in &paths {
-        let rays = ctx.counters.rays;
-        let r = hslt.propose(x, &mut ctx, &mut rng, &mut hslt_stats);
-        left_alone += (matches!(r, Err(Failure::NotApplicable)) && ctx.counters.rays == rays) as usize;
-    }
-    report.measure(format!(
-        "HSLT not applicable at no ray cost on {left_alone} of {} (gap: [C13] keeps such paths with a zero-weight \
-         vertex)",
-        paths.len()
-    ));
-    report.check(left_alone == paths.len(), "HSLT must leave paths through a Dirac null interface alone");
+    // HSLT holds the sheet at h = 0 like any Dirac vertex: no step, no step share, no kernel factor.
+    let hslt = HalfVectorMutation::new(HalfVectorParams::default());
+    let held = paths
+        .iter()
+        .filter(|x| {
+            hslt.prepare(&scene, &x.vertices, x.film)
+                .is_ok_and(|p| p.held[0] && !p.held[1..].iter().any(|&h| h))
+        })
+        .count();
+    report.measure(format!("HSLT holds the sheet (and only it) on {held} of {} paths", paths.len()));
+    report.check(held == paths.len(), "HSLT must hold the null interface at h = 0 and perturb the rest");
     memlt_through_the_sheet(&scene, &paths, effort, &mut report);
     report
 }
@@ -187,20 +184,39 @@ fn memlt_through_the_sheet(scene: &Scene, paths: &[PathState], effort: Effort, r
         let conv = v[1].convert_density(1.0, &v[2], scene) as f64;
         worst_factor = worst_factor.max((vc.c.determinant().abs() * j - conv).abs() / conv);
     }
+    report
+        .measure(format!("MEMLT through the sheet: |det C_1|·|dω_o/dh| vs conv off by ≤ {worst_factor:.1e}"));
+    // f32 vertex positions: ~1e-4 agreement on well-conditioned vertices, as for glass (tests/memlt.rs).
+    report.check(worst_factor < 2e-3, format!("the sheet's Dirac factor is off by {worst_factor:e}"));
     let bdpt = bdpt_for(scene);
-    let seeds = seeding(scene, &bdpt, 11, 20_000);
     let mut memlt = ManifoldPerturbation::new(50.0, 0.1);
-    let mut ctx = PathContext::new(scene, &bdpt);
+    balance_through_the_sheet(scene, &bdpt, &mut memlt, "MEMLT", effort, report);
+    let mut hslt = HalfVectorMutation::new(HalfVectorParams::default());
+    balance_through_the_sheet(scene, &bdpt, &mut hslt, "HSLT", effort, report);
+}
+
+/// Detailed balance of `mutation` on paths through the sheet drawn ∝ target: E[R·1{valid}] = P(valid)
+/// and E[R·1{R<1}] = P(R>1) (tests/memlt.rs has the derivation); no proposal may be invalid.
+fn balance_through_the_sheet<'a>(
+    scene: &'a Scene,
+    bdpt: &'a Bdpt,
+    mutation: &mut dyn Mutation<PathState, PathContext<'a>>,
+    name: &str,
+    effort: Effort,
+    report: &mut CaseReport,
+) {
+    let seeds = seeding(scene, bdpt, 11, 20_000);
+    let mut ctx = PathContext::new(scene, bdpt);
     let mut rng = Sampler::new(11, 0, 0);
     let mut stats = MutationStats::default();
     let (mut r_valid, mut r_below, mut above, mut valid, mut invalid) =
         (Vec::new(), Vec::new(), Vec::new(), 0, 0);
     for _ in 0..effort.scale(4000, 40_000) {
-        let Some(x) = seeds.draw(scene, &bdpt, 11, rng.next_f64()) else { continue };
+        let Some(x) = seeds.draw(scene, bdpt, 11, rng.next_f64()) else { continue };
         if !(x.vertices.len() == 4 && x.vertices[1].delta) {
             continue;
         }
-        let r = match memlt.propose(&x, &mut ctx, &mut rng, &mut stats) {
+        let r = match mutation.propose(&x, &mut ctx, &mut rng, &mut stats) {
             Ok(p) if p.t_ratio.is_finite() && p.t_ratio >= 0.0 && p.state.contribution.is_finite() => {
                 valid += 1;
                 Some(target(&p.state) * p.t_ratio / target(&x))
@@ -226,25 +242,25 @@ fn memlt_through_the_sheet(scene: &Scene, paths: &[PathState], effort: Effort, r
     let p_valid = valid as f64 / n;
     let ((rv, rv_se), (rb, rb_se), (ab, ab_se)) = (mean_se(&r_valid), mean_se(&r_below), mean_se(&above));
     report.measure(format!(
-        "MEMLT through the sheet: |det C_1|·|dω_o/dh| vs conv off by ≤ {worst_factor:.1e}; {} proposals, valid \
-         {p_valid:.3}, {invalid} invalid, failed [{}]; E[R·1valid] {rv:.3}±{rv_se:.3} vs P(valid) {p_valid:.3}; \
-         E[R·1(R<1)] {rb:.3}±{rb_se:.3} vs P(R>1) {ab:.3}±{ab_se:.3}",
+        "{name} through the sheet: {} proposals, valid {p_valid:.3}, {invalid} invalid, failed [{}]; E[R·1valid] \
+         {rv:.3}±{rv_se:.3} vs P(valid) {p_valid:.3}; E[R·1(R<1)] {rb:.3}±{rb_se:.3} vs P(R>1) {ab:.3}±{ab_se:.3}",
         r_valid.len(),
         failures(&stats)
     ));
-    // f32 vertex positions: ~1e-4 agreement on well-conditioned vertices, as for glass (tests/memlt.rs).
-    report.check(worst_factor < 2e-3, format!("the sheet's Dirac factor is off by {worst_factor:e}"));
-    report.check(invalid == 0, format!("MEMLT produced {invalid} NaN/inf proposals"));
+    report.check(invalid == 0, format!("{name} produced {invalid} NaN/inf proposals"));
     report.check(
         valid * 10 > r_valid.len(),
-        format!("MEMLT moves only {valid} of {} paths through the sheet", r_valid.len()),
+        format!("{name} moves only {valid} of {} paths through the sheet", r_valid.len()),
     );
     // The seed pool is a finite stand-in for the target: 5 standard errors plus 2% for its resampling.
     let se = (rv_se * rv_se + p_valid * (1.0 - p_valid) / n).sqrt();
     report.check(
         (rv - p_valid).abs() <= 5.0 * se + 0.02 * p_valid,
-        format!("E[R·1valid] {rv:.4} vs P(valid) {p_valid:.4}"),
+        format!("{name}: E[R·1valid] {rv:.4} vs P(valid) {p_valid:.4}"),
     );
     let se = (rb_se * rb_se + ab_se * ab_se).sqrt();
-    report.check((rb - ab).abs() <= 5.0 * se + 0.02 * ab, format!("E[R·1(R<1)] {rb:.4} vs P(R>1) {ab:.4}"));
+    report.check(
+        (rb - ab).abs() <= 5.0 * se + 0.02 * ab,
+        format!("{name}: E[R·1(R<1)] {rb:.4} vs P(R>1) {ab:.4}"),
+    );
 }
