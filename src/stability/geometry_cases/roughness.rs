@@ -174,7 +174,7 @@ pub fn near_specular(effort: Effort) -> CaseReport {
     report.measure(format!("glossy plane {}", rows.join("; ")));
     report.measure(
         "gap: vertices below a roughness threshold are not routed to a Fresnel-only specular treatment \
-         (HSLT leaves Dirac vertices to other mutations; α is floored at 1e-4 by the BSDFs)",
+         (only smooth, Dirac vertices are held at h = 0; α is floored at 1e-4 by the BSDFs)",
     );
     report
 }
