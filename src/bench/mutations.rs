@@ -1,6 +1,6 @@
 //! `hslt bench hslt`: HSLT mutations per second on a scene's stationary paths (drawn from a BDPT
-//! seeding pass), with the Newton corrector's ray casts batched per pass (one query for the three
-//! candidate step sizes) and cast one at a time, measured side by side on the same proposals, with
+//! seeding pass), with the Newton corrector's step candidates traced three per pass (the default,
+//! batched into one query or cast one at a time) or one by one, measured side by side on the same proposals, with
 //! the walk traced from the chosen end (`--direction`) and what the proposals gave (acceptance, failures);
 //! then the proposals' forward walks alone, G walks in flight sharing each corrector query (issue #7).
 
@@ -45,15 +45,13 @@ fn run_pass(
     scene: &Scene,
     bdpt: &Bdpt,
     starts: &[PathState],
-    batch_rays: bool,
+    walk: WalkSettings,
     direction: TraceDirection,
 ) -> Pass {
-    let defaults = HalfVectorParams::default();
-    let params =
-        HalfVectorParams { walk: WalkSettings { batch_rays, ..defaults.walk }, direction, ..defaults };
+    let params = HalfVectorParams { walk, direction, ..HalfVectorParams::default() };
     let mut mutation = HalfVectorMutation::new(params);
     let mut ctx = PathContext::new(scene, bdpt);
-    // The same stream in both modes: the same targets, so the same walks, differ only in ray casting.
+    // The same stream in every mode: the same targets, so the same walks, differ only in ray casting.
     let mut rng = Sampler::new(0x4853, 0, 0);
     let start = Instant::now();
     let mut built = 0;
@@ -282,13 +280,18 @@ pub fn bench_hslt(
     let bdpt = Bdpt::new(limits, scene.integrator.hide_emitters);
     let starts = stationary_starts(scene, &bdpt, proposals)?;
     let repeats = repeats.max(1);
+    let at_once = HalfVectorParams::default().walk;
+    let lazy = WalkSettings { candidates_at_once: false, ..at_once };
+    let at_once_single = WalkSettings { batch_rays: false, ..at_once };
+    let mut one_by_one = Vec::new();
     let mut batched = Vec::new();
     let mut single = Vec::new();
     for _ in 0..repeats {
-        batched.push(run_pass(scene, &bdpt, &starts, true, direction));
-        single.push(run_pass(scene, &bdpt, &starts, false, direction));
+        one_by_one.push(run_pass(scene, &bdpt, &starts, lazy, direction));
+        batched.push(run_pass(scene, &bdpt, &starts, at_once, direction));
+        single.push(run_pass(scene, &bdpt, &starts, at_once_single, direction));
     }
-    let (b, s) = (median_of(&mut batched), median_of(&mut single));
+    let (l, b, s) = (median_of(&mut one_by_one), median_of(&mut batched), median_of(&mut single));
     let mut out = String::new();
     let _ = writeln!(
         out,
@@ -298,14 +301,23 @@ pub fn bench_hslt(
     );
     let _ = writeln!(
         out,
-        "{:<22} {:>14} {:>12} {:>10} {:>12}",
-        "corrector rays", "mutations/s", "Mrays/s", "built", "rays/mut."
+        "{:<36} {:>14} {:>12} {:>10} {:>12}",
+        "step candidates / corrector rays", "mutations/s", "Mrays/s", "built", "rays/mut."
     );
-    for (name, p) in [("batched per pass", b), ("one at a time", s)] {
+    for (name, p) in [
+        ("one by one", l),
+        ("three per pass, batched (default)", b),
+        ("three per pass, one ray at a time", s),
+    ] {
         let (per_s, mrays, built, rays) = p.columns(starts.len());
-        let _ = writeln!(out, "{name:<22} {per_s:>14.0} {mrays:>12.2} {built:>10} {rays:>12.1}");
+        let _ = writeln!(out, "{name:<36} {per_s:>14.0} {mrays:>12.2} {built:>10} {rays:>12.1}");
     }
     let _ = writeln!(out, "speed-up of batched over single-ray casts: {:.3}x", s.seconds / b.seconds);
+    let _ = writeln!(
+        out,
+        "speed-up of one candidate at a time over three batched per pass: {:.3}x",
+        b.seconds / l.seconds
+    );
     let n = starts.len() as f64;
     let sum = |what: &str| b.stats.sums.get(what).copied().unwrap_or(0.0);
     let _ = writeln!(
