@@ -221,16 +221,18 @@ fn walks_in_flight_match_single_walks_bit_for_bit_on_jewelry() {
         assert_eq!(format!("{a:?}"), format!("{b:?}"), "job {j}, single rays");
         assert_eq!(*rays_a, rays_b, "rays of job {j}, single rays");
     }
-    // Tracing the step candidates one by one tries the same fractions in the same order, so it reaches
-    // the same iterates; it casts fewer rays whenever a larger step succeeds, never more.
-    let one_by_one = WalkSettings { candidates_at_once: false, ..settings };
+    // Tracing the step candidates one by one (the default) tries the same fractions in the same order as
+    // three per pass, so it reaches the same iterates; it casts fewer rays whenever a larger step
+    // succeeds, never more.
+    assert!(!settings.candidates_at_once);
+    let at_once = WalkSettings { candidates_at_once: true, ..settings };
     let (mut fewer, mut total_a, mut total_b) = (0, 0, 0);
     for (j, ((a, rays_a), (b, rays_b))) in
-        alone.iter().zip(walk_in_groups(&scene, &jobs, 16, &one_by_one)).enumerate()
+        walk_in_groups(&scene, &jobs, 16, &at_once).iter().zip(&alone).enumerate()
     {
         assert_eq!(format!("{a:?}"), format!("{b:?}"), "job {j}, candidates one by one");
-        assert!(rays_b <= *rays_a, "job {j}: {rays_b} rays one by one, {rays_a} three at once");
-        fewer += (rays_b < *rays_a) as usize;
+        assert!(rays_b <= rays_a, "job {j}: {rays_b} rays one by one, {rays_a} three at once");
+        fewer += (rays_b < rays_a) as usize;
         (total_a, total_b) = (total_a + rays_a, total_b + rays_b);
     }
     assert!(fewer * 2 > jobs.len(), "one by one saved rays on only {fewer} of {} walks", jobs.len());

@@ -1,6 +1,6 @@
 //! `hslt bench hslt`: HSLT mutations per second on a scene's stationary paths (drawn from a BDPT
-//! seeding pass), with the Newton corrector's step candidates traced three per pass (the default,
-//! batched into one query or cast one at a time) or one by one, measured side by side on the same proposals, with
+//! seeding pass), with the Newton corrector's step candidates traced one by one (the default) or three
+//! per pass (batched into one query, or cast one at a time), measured side by side on the same proposals, with
 //! the walk traced from the chosen end (`--direction`) and what the proposals gave (acceptance, failures);
 //! then the proposals' forward walks alone, G walks in flight sharing each corrector query (issue #7).
 
@@ -280,8 +280,8 @@ pub fn bench_hslt(
     let bdpt = Bdpt::new(limits, scene.integrator.hide_emitters);
     let starts = stationary_starts(scene, &bdpt, proposals)?;
     let repeats = repeats.max(1);
-    let at_once = HalfVectorParams::default().walk;
-    let lazy = WalkSettings { candidates_at_once: false, ..at_once };
+    let lazy = HalfVectorParams::default().walk;
+    let at_once = WalkSettings { candidates_at_once: true, ..lazy };
     let at_once_single = WalkSettings { batch_rays: false, ..at_once };
     let mut one_by_one = Vec::new();
     let mut batched = Vec::new();
@@ -305,8 +305,8 @@ pub fn bench_hslt(
         "step candidates / corrector rays", "mutations/s", "Mrays/s", "built", "rays/mut."
     );
     for (name, p) in [
-        ("one by one", l),
-        ("three per pass, batched (default)", b),
+        ("one by one (default)", l),
+        ("three per pass, batched", b),
         ("three per pass, one ray at a time", s),
     ] {
         let (per_s, mrays, built, rays) = p.columns(starts.len());
@@ -319,16 +319,16 @@ pub fn bench_hslt(
         b.seconds / l.seconds
     );
     let n = starts.len() as f64;
-    let sum = |what: &str| b.stats.sums.get(what).copied().unwrap_or(0.0);
+    let sum = |what: &str| l.stats.sums.get(what).copied().unwrap_or(0.0);
     let _ = writeln!(
         out,
         "acceptance {:.4}, built {:.4}, mean Newton iterations {:.2}, traced from the light {:.3}",
-        b.acceptance_sum / n,
-        b.built as f64 / n,
+        l.acceptance_sum / n,
+        l.built as f64 / n,
         sum("newton_iterations") / sum("converged_walks").max(1.0),
         sum("traced_from_light") / n
     );
-    let mut failures: Vec<_> = b.stats.failed.iter().collect();
+    let mut failures: Vec<_> = l.stats.failed.iter().collect();
     failures.sort_by(|x, y| y.1.cmp(x.1));
     let failures: Vec<String> = failures.iter().map(|(r, c)| format!("{r} {:.4}", **c as f64 / n)).collect();
     let _ = writeln!(out, "failures per proposal: {}", failures.join(", "));

@@ -129,12 +129,22 @@ impl EmbreeScene {
     /// share one origin — camera rays, manifold-corrector bundles — and its hybrid packet/single-ray
     /// traversal otherwise.
     pub fn intersect_batch(&self, rays: &[Ray], hits: &mut [Option<Hit>]) {
+        // A packet with one live lane costs more than the single-ray kernel (the corrector's rows
+        // often hold one ray).
+        if let ([ray], [hit]) = (rays, &mut *hits) {
+            *hit = self.intersect(ray);
+            return;
+        }
         self.intersect_packets(rays, hits, PacketHint::SharedOrigin);
     }
 
     /// Occlusion for `rays` (`occluded.len()` should equal `rays.len()`); same strategy as
     /// [`Self::intersect_batch`].
     pub fn occluded_batch(&self, rays: &[Ray], occluded: &mut [bool]) {
+        if let ([ray], [blocked]) = (rays, &mut *occluded) {
+            *blocked = self.occluded(ray);
+            return;
+        }
         self.occluded_packets(rays, occluded, PacketHint::SharedOrigin);
     }
 
