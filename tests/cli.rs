@@ -85,6 +85,19 @@ fn undefined_parameter_and_bad_cli_values_are_errors() {
     expect_error(&["render", f.to_str().unwrap(), "-o", "x.exr", "--integrator", "nope"], &["nope"]);
     expect_error(&["render", f.to_str().unwrap(), "-o", "x.bmp"], &["x.bmp"]);
     expect_error(&["info", data("nope.xml").to_str().unwrap()], &["nope.xml"]);
+    let f = f.to_str().unwrap();
+    expect_error(
+        &["render", f, "-o", "x.exr", "--integrator", "bdpt", "--direct-samples", "4"],
+        &["Metropolis"],
+    );
+    expect_error(
+        &["render", f, "-o", "x.exr", "--integrator", "pssmlt", "--direct-share", "0.2"],
+        &["--time"],
+    );
+    expect_error(
+        &["render", f, "-o", "x.exr", "--integrator", "pssmlt", "--time", "1", "--direct-share", "1.5"],
+        &["--direct-share"],
+    );
 }
 
 #[test]

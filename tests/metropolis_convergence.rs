@@ -20,6 +20,7 @@
 use hslt::cli::{load_scene, render_scene};
 use hslt::image::ImageBuf;
 use hslt::integrators::{make_with, DepthLimits, IntegratorKind, IntegratorSettings};
+use hslt::metropolis::direct::DirectPass;
 use hslt::render::RenderOptions;
 use std::path::Path;
 use std::sync::atomic::AtomicBool;
@@ -67,6 +68,17 @@ fn metropolis_kinds() -> Vec<IntegratorKind> {
 /// Renders `RUNS` runs of every Metropolis integrator at `mutations` per pixel and `RUNS` BDPT runs at
 /// `bdpt_spp`, and checks each integrator's blocks against BDPT's.
 fn converges_to_bdpt(rel: &str, defines: &[(&str, &str)], mutations: u32, bdpt_spp: u32) {
+    converges_to_bdpt_with(rel, defines, mutations, bdpt_spp, DirectPass::Auto);
+}
+
+/// As `converges_to_bdpt`, with the direct-illumination pass sized by `direct`.
+fn converges_to_bdpt_with(
+    rel: &str,
+    defines: &[(&str, &str)],
+    mutations: u32,
+    bdpt_spp: u32,
+    direct: DirectPass,
+) {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(rel);
     let mut all: Vec<(&str, &str)> = vec![("resx", "32"), ("resy", "32")];
     all.extend_from_slice(defines);
@@ -74,6 +86,7 @@ fn converges_to_bdpt(rel: &str, defines: &[(&str, &str)], mutations: u32, bdpt_s
     let limits = DepthLimits { max_depth: scene.integrator.max_depth, rr_depth: scene.integrator.rr_depth };
     let mut settings = IntegratorSettings::new(limits, scene.integrator.hide_emitters);
     settings.pssmlt.seed_paths = Some(SEED_PATHS);
+    settings.pssmlt.direct = direct;
     let render = |kind: IntegratorKind, spp: u32, seed: u64| {
         let (img, stats) = if kind == IntegratorKind::Bdpt {
             render_scene(&scene, kind, spp, seed)
@@ -131,6 +144,18 @@ fn converges_to_bdpt(rel: &str, defines: &[(&str, &str)], mutations: u32, bdpt_s
 #[test]
 fn cornell_box() {
     converges_to_bdpt("scenes/cornell-box/scene.xml", &[], 64, 256);
+}
+
+/// By default PSSMLT renders direct illumination in a separate pass and the path-space methods leave
+/// it to their chains; here every integrator does the one, then the other.
+#[test]
+fn cornell_box_with_a_direct_pass_for_every_integrator() {
+    converges_to_bdpt_with("scenes/cornell-box/scene.xml", &[], 64, 256, DirectPass::Samples(16));
+}
+
+#[test]
+fn cornell_box_with_direct_light_in_every_chain() {
+    converges_to_bdpt_with("scenes/cornell-box/scene.xml", &[], 64, 256, DirectPass::Off);
 }
 
 #[test]

@@ -8,6 +8,7 @@
 
 use hslt::cli::load_scene;
 use hslt::integrators::{make_with, DepthLimits, IntegratorKind, IntegratorSettings, RenderOutput};
+use hslt::metropolis::chain::OUTSIDE_SUPPORT;
 use hslt::metropolis::{
     Chain, ChainState, Failure, Mutation, MutationStats, Proposal, PssSampler, PssmltSettings,
     TargetFunction, WeightedMutation,
@@ -271,6 +272,69 @@ fn chain_with_expected_values_reproduces_a_known_integral() {
         );
         if exact == 0.0 {
             assert_eq!(mean, 0.0, "the zero region received weight");
+        }
+    }
+}
+
+#[test]
+fn chain_restricted_to_a_support_samples_the_target_on_it_alone() {
+    // The toy target restricted to u >= 0.25 (how chains leave direct-lighting paths to a separate
+    // pass): every bin below gets nothing, proposals there are counted as outside the support, and
+    // the bins above reproduce their integrals with b = ∫ f over the support alone.
+    let b = toy_integral(0.25, 1.0);
+    let (chains, steps, bins) = (32, 20_000, 8);
+    let mut estimates = vec![Vec::new(); bins];
+    let mut outside = 0;
+    for c in 0..chains {
+        let (mut pss, start) = (1..)
+            .map(|attempt| {
+                let mut pss = PssSampler::new(Sampler::new(22, c, 100 + attempt), 1);
+                let u = pss.next_1d();
+                (pss, Point { u })
+            })
+            .find(|(_, p)| p.u >= 0.25 && toy_f(p.u as f64) > 0.0)
+            .unwrap();
+        let mutations = vec![
+            WeightedMutation { mutation: Box::new(ToyStep { large: true }), weight: 0.3 },
+            WeightedMutation { mutation: Box::new(ToyStep { large: false }), weight: 0.7 },
+        ];
+        let mut chain = Chain::new(start, mutations, TargetFunction::Luminance, Sampler::new(22, c, 2))
+            .with_support(Box::new(|p: &Point| p.u >= 0.25));
+        let mut histogram = vec![0.0f64; bins];
+        let mut record = |p: &Point, w: f64| {
+            histogram[((p.u as f64 * bins as f64) as usize).min(bins - 1)] += w * toy_f(p.u as f64);
+        };
+        for _ in 0..steps {
+            chain.step(&mut pss, &mut record);
+        }
+        for (k, h) in histogram.iter().enumerate() {
+            estimates[k].push(h * b / steps as f64);
+        }
+        for s in chain.stats() {
+            assert_eq!(
+                s.proposed,
+                s.accepted
+                    + s.rejected
+                    + s.rejected_zero
+                    + s.rejected_invalid
+                    + s.not_applicable
+                    + s.failed_total()
+            );
+            outside += s.failed.get(OUTSIDE_SUPPORT).copied().unwrap_or(0);
+        }
+    }
+    assert!(outside > 0, "proposals below the support must be counted");
+    for (k, est) in estimates.iter().enumerate() {
+        let (lo, hi) = (k as f64 / bins as f64, (k + 1) as f64 / bins as f64);
+        let exact = toy_integral(lo.max(0.25), hi.max(0.25));
+        let (mean, se) = mean_se(est);
+        if hi <= 0.25 {
+            assert_eq!(mean, 0.0, "bin {k} lies outside the support but received weight");
+        } else {
+            assert!(
+                (mean - exact).abs() <= 5.0 * se + 1e-9,
+                "bin {k}: estimate {mean:.5} ± {se:.5}, exact {exact:.5}"
+            );
         }
     }
 }

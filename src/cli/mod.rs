@@ -8,6 +8,7 @@ pub mod report;
 use crate::accel::AccelKind;
 use crate::image::{ImageBuf, Metadata};
 use crate::integrators::{self, DepthLimits, IntegratorKind};
+use crate::metropolis::direct::DirectPass;
 use crate::metropolis::mutations::halfvector::TraceDirection;
 use crate::metropolis::MutationKind;
 use crate::path::MisHeuristic;
@@ -188,6 +189,16 @@ pub struct RenderArgs {
     /// PSSMLT: probability of a large step (an independent new sample) per mutation.
     #[arg(long, value_name = "P", default_value_t = 0.3)]
     pub p_large: f64,
+    /// Metropolis (pssmlt, mlt, memlt, hslt, hslt+mlt): BDPT samples per pixel of a separate pass for
+    /// direct illumination (paths of one or two segments), so the chains render indirect light only, as
+    /// Mitsuba's MLT family does; 0 leaves direct illumination to the chains [default: PSSMLT 16, or
+    /// with --time the share --direct-share of it; path-space methods 0]
+    #[arg(long, value_name = "N", conflicts_with = "direct_share")]
+    pub direct_samples: Option<u32>,
+    /// Metropolis: the fraction of --time the direct-illumination pass runs for [default: PSSMLT 0.1,
+    /// path-space methods no pass]
+    #[arg(long, value_name = "F")]
+    pub direct_share: Option<f64>,
     /// Samples per pixel (overrides the scene's sampler); with --time, a cap.
     #[arg(long)]
     pub spp: Option<u32>,
@@ -341,6 +352,26 @@ fn run_render(args: RenderArgs) -> anyhow::Result<i32> {
         settings.path_chains = Some(chains);
     }
     settings.pssmlt.p_large = args.p_large;
+    if (args.direct_samples.is_some() || args.direct_share.is_some())
+        && matches!(kind, IntegratorKind::Path | IntegratorKind::Bdpt)
+    {
+        bail!(
+            "--direct-samples and --direct-share apply to the Metropolis integrators (pssmlt, mlt, memlt, \
+             hslt, hslt+mlt)"
+        );
+    }
+    if let Some(n) = args.direct_samples {
+        settings.pssmlt.direct = if n == 0 { DirectPass::Off } else { DirectPass::Samples(n) };
+    }
+    if let Some(f) = args.direct_share {
+        if !(0.0..1.0).contains(&f) {
+            bail!("--direct-share must be at least 0 and below 1");
+        }
+        if args.time.is_none() {
+            bail!("--direct-share needs --time (without a time limit, size the pass with --direct-samples)");
+        }
+        settings.pssmlt.direct = if f == 0.0 { DirectPass::Off } else { DirectPass::Share(f) };
+    }
     if let Some(list) = &args.mutations {
         if !kind.is_path_space() {
             bail!("--mutations applies to the path-space integrators (mlt, memlt, hslt, hslt+mlt)");

@@ -21,12 +21,17 @@ use crate::spectrum::Spectrum;
 /// Longest sub-path when `max_depth` is unbounded; Russian roulette ends paths long before.
 const UNBOUNDED_VERTICES: usize = 256;
 
+#[derive(Clone, Debug)]
 pub struct Bdpt {
     pub limits: DepthLimits,
     pub hide_emitters: bool,
     pub heuristic: MisHeuristic,
     /// Write each strategy's weighted contribution as an extra layer, for path depths up to this.
     pub strategy_layers: Option<u32>,
+    /// Shortest full path (in vertices) whose strategies are estimated: 2 estimates everything; the
+    /// Metropolis integrators raise it to 4 when direct illumination is rendered separately
+    /// (`metropolis::direct`), so the seeding pass and PSSMLT's samples carry indirect light only.
+    pub min_path_vertices: usize,
 }
 
 /// One weighted strategy estimate of a sample.
@@ -68,7 +73,13 @@ pub struct Subpaths {
 
 impl Bdpt {
     pub fn new(limits: DepthLimits, hide_emitters: bool) -> Bdpt {
-        Bdpt { limits, hide_emitters, heuristic: MisHeuristic::Power, strategy_layers: None }
+        Bdpt {
+            limits,
+            hide_emitters,
+            heuristic: MisHeuristic::Power,
+            strategy_layers: None,
+            min_path_vertices: 2,
+        }
     }
 
     /// Most vertices a full path may have.
@@ -146,7 +157,7 @@ impl Bdpt {
         for t in 1..=sub.camera.len() {
             for s in 0..=sub.light.len() {
                 let n = s + t;
-                if n < 2 || n > max_vertices || (self.hide_emitters && n == 2) {
+                if n < self.min_path_vertices.max(2) || n > max_vertices || (self.hide_emitters && n == 2) {
                     continue;
                 }
                 if let Some(c) = self.connect(scene, &sub, s, t, sampler, counters) {
@@ -157,7 +168,7 @@ impl Bdpt {
         // Camera rays that left the scene meet each environment light (s = 0).
         if let Some((dir, beta)) = sub.escaped {
             let t = sub.camera.len() + 1;
-            if t <= max_vertices && !(self.hide_emitters && t == 2) {
+            if t >= self.min_path_vertices && t <= max_vertices && !(self.hide_emitters && t == 2) {
                 for &li in &scene.infinite_lights {
                     let mut camera = sub.camera.clone();
                     let last = camera[camera.len() - 1];

@@ -264,6 +264,7 @@ pub fn make_with(kind: IntegratorKind, settings: &IntegratorSettings) -> Box<dyn
                 settings.mutations.clone().unwrap_or_else(|| kind.default_mutations()),
             );
             mlt.seed_paths = settings.pssmlt.seed_paths;
+            mlt.direct = settings.pssmlt.direct.for_path_space();
             mlt.chains = settings.path_chains.unwrap_or(crate::metropolis::mlt::DEFAULT_PATH_CHAINS);
             mlt.target = settings.pssmlt.target;
             mlt.mutation = settings.mutation.clone();

@@ -154,7 +154,16 @@ pub struct Chain<S, C> {
     stats: Vec<MutationStats>,
     rng: Sampler,
     target: TargetFunction,
+    /// The states the target is defined on; outside it the target is zero (direct-lighting paths when
+    /// direct illumination is rendered separately). Everything by default.
+    support: Option<Support<S>>,
 }
+
+/// A predicate on states: `true` where the chain's target may be positive.
+pub type Support<S> = Box<dyn Fn(&S) -> bool + Send>;
+
+/// Failure reason under which proposals outside the chain's support are counted.
+pub const OUTSIDE_SUPPORT: &str = "outside_support";
 
 impl<S: ChainState, C> Chain<S, C> {
     /// `start` must have a positive, finite target; `rng` is the chain's own stream (from the seed and
@@ -174,7 +183,15 @@ impl<S: ChainState, C> Chain<S, C> {
             .iter()
             .map(|m| MutationStats { name: m.mutation.name(), ..Default::default() })
             .collect();
-        Chain { current: start, current_target, mutations, total_weight, stats, rng, target }
+        Chain { current: start, current_target, mutations, total_weight, stats, rng, target, support: None }
+    }
+
+    /// Restricts the target to states for which `support` holds: proposals outside it are rejected
+    /// like zero-contribution ones (counted as `OUTSIDE_SUPPORT`). The current state must be inside.
+    pub fn with_support(mut self, support: Support<S>) -> Chain<S, C> {
+        assert!(support(&self.current), "a chain must start inside its support");
+        self.support = Some(support);
+        self
     }
 
     pub fn current(&self) -> &S {
@@ -222,6 +239,12 @@ impl<S: ChainState, C> Chain<S, C> {
                 return;
             }
         };
+        if self.support.as_ref().is_some_and(|inside| !inside(&proposal.state)) {
+            *stats.failed.entry(OUTSIDE_SUPPORT).or_insert(0) += 1;
+            mutation.rejected(ctx);
+            record(&self.current, 1.0 / self.current_target);
+            return;
+        }
         let valid = proposal.state.is_valid() && proposal.t_ratio.is_finite() && proposal.t_ratio >= 0.0;
         let proposed_target = if valid { self.target.eval(proposal.state.contribution()) } else { 0.0 };
         if !valid || !(proposed_target > 0.0) {

@@ -97,7 +97,8 @@ pub struct DriveOutcome {
 /// Work per chain: `total` mutations split evenly, or unbounded (`u64::MAX`) when only a time limit
 /// ends the render.
 pub fn quotas(total: u64, chains: usize) -> Vec<u64> {
-    let n = chains.max(1) as u64;
+    // No chains (none found a starting path): no work, and `drive` returns the film as it is.
+    let n = chains as u64;
     (0..n).map(|c| if total == u64::MAX { u64::MAX } else { total / n + u64::from(c < total % n) }).collect()
 }
 
@@ -224,4 +225,18 @@ pub fn mutation_metadata(stats: &[MutationStats]) -> Vec<(String, String)> {
 /// Seconds between two instants, for metadata.
 pub fn seconds(from: Instant, to: Instant) -> f64 {
     to.saturating_duration_since(from).as_secs_f64()
+}
+
+/// What the image holds when the seeding pass found nothing for the chains.
+pub fn empty_seeding_status(seed_paths: usize, chain_bdpt: &crate::integrators::Bdpt) -> String {
+    if chain_bdpt.min_path_vertices > 2 {
+        format!(
+            "no light-carrying path of three or more segments among {seed_paths} seed paths: the image \
+             holds the separately rendered direct illumination only"
+        )
+    } else {
+        format!(
+            "no light-carrying path among {seed_paths} seed paths (lights hidden or blocked?): the image is black"
+        )
+    }
 }

@@ -4,6 +4,7 @@
 //! MLT, MEMLT, HSLT and HSLT+MLT are this integrator with different mutation sets.
 
 use super::chain::{Chain, MutationStats, TargetFunction, WeightedMutation};
+use super::direct;
 use super::driver::{self, ChainRunner, RunningChain};
 use super::mutations::{self, MutationKind, MutationSettings};
 use super::path_state::{PathContext, PathState};
@@ -35,6 +36,9 @@ pub struct MltSettings {
     pub target: TargetFunction,
     /// Parameters of the individual mutations.
     pub mutation: MutationSettings,
+    /// The separate direct-illumination pass (`metropolis::direct`); `Off` lets the chains render
+    /// direct illumination too.
+    pub direct: direct::DirectPass,
 }
 
 impl MltSettings {
@@ -47,6 +51,7 @@ impl MltSettings {
             mutations,
             target: TargetFunction::Luminance,
             mutation: MutationSettings::default(),
+            direct: direct::DirectPass::Off,
         }
     }
 }
@@ -150,8 +155,11 @@ impl PathSeeds {
 }
 
 impl PathMlt {
+    /// With `settings.direct` enabled the chains and the seeding pass run on `bdpt` without its
+    /// direct-lighting paths (`direct::chain_bdpt`), which the render estimates separately.
     pub fn new(name: &'static str, bdpt: Bdpt, settings: MltSettings) -> PathMlt {
-        PathMlt { name, bdpt, settings }
+        let settings = MltSettings { direct: settings.direct.for_path_space(), ..settings };
+        PathMlt { name, bdpt: direct::chain_bdpt(bdpt, settings.direct), settings }
     }
 
     fn build_mutations(&self, scene: &Scene) -> Vec<WeightedMutation<PathState, PathContext<'_>>> {
@@ -182,7 +190,11 @@ impl PathMlt {
                 if mutations.is_empty() {
                     return None;
                 }
-                let chain = Chain::new(start, mutations, target, rng);
+                let mut chain = Chain::new(start, mutations, target, rng);
+                if self.bdpt.min_path_vertices > 2 {
+                    let min_vertices = self.bdpt.min_path_vertices;
+                    chain = chain.with_support(Box::new(move |s: &PathState| s.len() >= min_vertices));
+                }
                 return Some(ChainRunner { chain, ctx: PathContext::new(scene, &self.bdpt) });
             }
         }
@@ -201,6 +213,9 @@ impl Integrator for PathMlt {
         let film = Film::with_filter(scene.film.width, scene.film.height, scene.film.rfilter);
         let mut stats = RenderStats::default();
         let mut metadata: Vec<(String, String)> = Vec::new();
+        let mut film = film;
+        let direct = self.settings.direct;
+        direct::render_into(&mut film, scene, &self.bdpt, direct, options, cancel, &mut stats, &mut metadata);
         let seed = options.seed ^ (options.first_sample as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15);
         let n_seed = self.settings.seed_paths.unwrap_or_else(|| default_seed_paths(pixels)).max(1);
         let seeds = PathSeeds::run(scene, &self.bdpt, seed, n_seed, cancel);
@@ -217,17 +232,10 @@ impl Integrator for PathMlt {
             let direction = self.settings.mutation.halfvector.direction.name();
             metadata.push(("hslt.mlt.hslt.direction".into(), direction.into()));
         }
-        let mut film = film;
         if cancel.load(Ordering::Relaxed) || !(b > 0.0 && b.is_finite()) {
             stats.interrupted = cancel.load(Ordering::Relaxed);
             if !stats.interrupted {
-                metadata.push((
-                    "hslt.mlt.status".into(),
-                    format!(
-                        "no light-carrying path among {n_seed} seed paths (lights hidden or blocked?): \
-                         the image is black"
-                    ),
-                ));
+                metadata.push(("hslt.mlt.status".into(), driver::empty_seeding_status(n_seed, &self.bdpt)));
             }
             film.splat_scale = 0.0;
             stats.elapsed = start_time.elapsed();

@@ -3,6 +3,7 @@
 //! Path-space mutations (bidirectional, lens, caustic, multi-chain, HSLT) implement `chain::Mutation`.
 
 pub mod chain;
+pub mod direct;
 pub mod driver;
 pub mod mlt;
 pub mod mutations;

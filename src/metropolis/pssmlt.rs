@@ -5,6 +5,7 @@
 use super::chain::{
     Chain, ChainState, Failure, Mutation, MutationStats, Proposal, TargetFunction, WeightedMutation,
 };
+use super::direct;
 use super::driver::{self, ChainRunner, CountsRays, FilmState, RunningChain};
 use super::pss::PssSampler;
 use crate::geometry::Vec2;
@@ -42,11 +43,20 @@ pub struct PssmltSettings {
     /// Probability of a large step (a fresh, independent sample).
     pub p_large: f64,
     pub target: TargetFunction,
+    /// The separate direct-illumination pass (`metropolis::direct`); `Off` lets the chains render
+    /// direct illumination too.
+    pub direct: direct::DirectPass,
 }
 
 impl Default for PssmltSettings {
     fn default() -> PssmltSettings {
-        PssmltSettings { seed_paths: None, chains: 64, p_large: 0.3, target: TargetFunction::Luminance }
+        PssmltSettings {
+            seed_paths: None,
+            chains: 64,
+            p_large: 0.3,
+            target: TargetFunction::Luminance,
+            direct: direct::DirectPass::Auto,
+        }
     }
 }
 
@@ -170,8 +180,10 @@ impl<'a> Mutation<PssSample, PssContext<'a>> for PssStep {
 }
 
 impl Pssmlt {
+    /// With `settings.direct` enabled the chains run on `bdpt` without its direct-lighting paths
+    /// (`direct::chain_bdpt`), which the render estimates separately.
     pub fn new(bdpt: Bdpt, settings: PssmltSettings) -> Pssmlt {
-        Pssmlt { bdpt, settings }
+        Pssmlt { bdpt: direct::chain_bdpt(bdpt, settings.direct), settings }
     }
 
     /// The primary-sample vector of seed sample `index` (replayable: chains restart from it).
@@ -252,6 +264,8 @@ impl Integrator for Pssmlt {
         let mut stats = RenderStats::default();
         let mut metadata: Vec<(String, String)> = Vec::new();
         let target = self.settings.target;
+        let direct = self.settings.direct;
+        direct::render_into(&mut film, scene, &self.bdpt, direct, options, cancel, &mut stats, &mut metadata);
 
         // Runs that continue an earlier one (`first_sample` > 0) must be independent of it.
         let seed = options.seed ^ (options.first_sample as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15);
@@ -300,13 +314,7 @@ impl Integrator for Pssmlt {
         }
         if !(b > 0.0 && b.is_finite()) || stats.interrupted {
             if !stats.interrupted {
-                metadata.push((
-                    "hslt.mlt.status".into(),
-                    format!(
-                        "no light-carrying path among {n_seed} seed paths (lights hidden or blocked?): \
-                         the image is black"
-                    ),
-                ));
+                metadata.push(("hslt.mlt.status".into(), driver::empty_seeding_status(n_seed, &self.bdpt)));
             }
             film.splat_scale = 0.0;
             stats.elapsed = start_time.elapsed();

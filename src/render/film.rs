@@ -96,6 +96,20 @@ impl Film {
         }
     }
 
+    /// Adds a resolved image (same size, RGB) as one more sample of every pixel: a separately rendered
+    /// component that the splats then land on (Metropolis integrators' direct-illumination pass).
+    pub fn add_image_as_sample(&mut self, image: &ImageBuf) {
+        assert_eq!((image.width, image.height), (self.width, self.height), "adding an image of another size");
+        for (i, px) in image.data.chunks_exact(image.channels).enumerate() {
+            for c in 0..3 {
+                let v = px[c.min(image.channels - 1)] as f64;
+                self.sums[i][c] += v;
+                self.squares[i][c] += v * v;
+            }
+            self.counts[i] += 1;
+        }
+    }
+
     /// Adds a value to pixel (x, y) of a layer, as part of that pixel's camera samples.
     pub fn add_layer_sample(&mut self, layer: u16, x: usize, y: usize, value: Spectrum) {
         let acc = &mut self.layers[layer as usize].0[y * self.width + x];
@@ -305,6 +319,19 @@ mod tests {
                 assert!((v - 1.0).abs() < 0.05, "{rfilter:?}: pixel {} = {v}", i / 3);
             }
         }
+    }
+
+    #[test]
+    fn an_added_image_is_the_base_the_splats_land_on() {
+        let mut film = Film::new(2, 1);
+        let mut base = ImageBuf::new(2, 1, 3);
+        base.data.copy_from_slice(&[0.25, 0.5, 1.0, 2.0, 0.0, 3.0]);
+        film.add_image_as_sample(&base);
+        film.add_splat(&Splat { pos: Vec2::new(1.5, 0.5), value: Spectrum::splat(4.0), layer: None });
+        film.splat_scale = 0.5;
+        let img = film.to_image();
+        assert_eq!(img.data, vec![0.25, 0.5, 1.0, 4.0, 2.0, 5.0]);
+        assert_eq!(film.count(0, 0), 1);
     }
 
     #[test]

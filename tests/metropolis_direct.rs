@@ -1,0 +1,93 @@
+//! The Metropolis integrators' separate direct-illumination pass (`metropolis::direct`, Mitsuba's
+//! `directSamples`): the chains keep paths of three or more segments, BDPT renders the rest, and the
+//! sum is the whole image (the convergence tests in tests/metropolis_convergence.rs check that sum
+//! against BDPT on every bundled scene).
+
+use hslt::cli::load_scene;
+use hslt::integrators::{make_with, DepthLimits, IntegratorKind, IntegratorSettings, RenderOutput};
+use hslt::metropolis::direct::DirectPass;
+use hslt::render::RenderOptions;
+use hslt::scene::Scene;
+use std::path::Path;
+use std::sync::atomic::AtomicBool;
+
+mod common;
+
+use common::mlt::image_mean;
+
+fn cornell(defines: &[(&str, &str)]) -> Scene {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/cornell-box/scene.xml");
+    let mut all = vec![("resx", "32"), ("resy", "32")];
+    all.extend_from_slice(defines);
+    load_scene(&path, &all).expect("cornell box")
+}
+
+fn render(scene: &Scene, kind: IntegratorKind, spp: u32, seed: u64, direct: DirectPass) -> RenderOutput {
+    let limits = DepthLimits { max_depth: scene.integrator.max_depth, rr_depth: scene.integrator.rr_depth };
+    let mut settings = IntegratorSettings::new(limits, scene.integrator.hide_emitters);
+    settings.pssmlt.seed_paths = Some(16_384);
+    settings.pssmlt.direct = direct;
+    let options = RenderOptions { spp: Some(spp), seed, ..Default::default() };
+    make_with(kind, &settings).render(scene, &options, &AtomicBool::new(false))
+}
+
+fn meta<'a>(out: &'a RenderOutput, key: &str) -> Option<&'a str> {
+    out.metadata.iter().find(|(k, _)| k == key).map(|(_, v)| v.as_str())
+}
+
+fn metropolis_kinds() -> Vec<IntegratorKind> {
+    IntegratorKind::available_kinds()
+        .into_iter()
+        .filter(|k| !matches!(k, IntegratorKind::Path | IntegratorKind::Bdpt))
+        .collect()
+}
+
+#[test]
+fn without_indirect_light_the_image_is_the_direct_pass() {
+    // max_depth 2 leaves the chains nothing: every Metropolis integrator must say so and return the
+    // direct pass, which is BDPT over the same paths. 32×32 at 256 spp: the image means of two BDPT
+    // renders differ by a few tenths of a percent, so 2% is about ten standard errors.
+    let scene = cornell(&[("max_depth", "2")]);
+    let out = render(&scene, IntegratorKind::Bdpt, 256, 7, DirectPass::Off);
+    let reference = image_mean(&out.film.to_image());
+    for kind in metropolis_kinds() {
+        let out = render(&scene, kind, 4, 1, DirectPass::Samples(256));
+        let status = meta(&out, "hslt.mlt.status").unwrap_or_else(|| panic!("{}: no status", kind.name()));
+        assert!(status.contains("three or more segments"), "{}: {status}", kind.name());
+        assert_eq!(meta(&out, "hslt.mlt.direct_samples"), Some("256"), "{}", kind.name());
+        let img = out.film.to_image();
+        assert!(img.data.iter().all(|v| v.is_finite() && *v >= 0.0), "{}", kind.name());
+        let mean = image_mean(&img);
+        assert!(
+            (mean / reference - 1.0).abs() < 0.02,
+            "{}: direct pass mean {mean:.5} against BDPT {reference:.5}",
+            kind.name()
+        );
+    }
+}
+
+#[test]
+fn chains_reject_what_the_direct_pass_renders_and_only_then() {
+    let scene = cornell(&[]);
+    for kind in [IntegratorKind::Mlt, IntegratorKind::Hslt] {
+        let split = render(&scene, kind, 8, 3, DirectPass::Samples(4));
+        assert_eq!(meta(&split, "hslt.mlt.direct_samples"), Some("4"));
+        let outside: u64 = split
+            .metadata
+            .iter()
+            .filter(|(k, _)| k.ends_with(".failed.outside_support"))
+            .map(|(_, v)| v.parse::<u64>().unwrap())
+            .sum();
+        // The bidirectional mutation regrows paths of any length; those of one or two segments must
+        // be turned away, never recorded.
+        assert!(outside > 0, "{}: no proposal was outside the chains' support", kind.name());
+        let whole = render(&scene, kind, 8, 3, DirectPass::Off);
+        assert_eq!(meta(&whole, "hslt.mlt.direct_samples"), None);
+        assert!(!whole.metadata.iter().any(|(k, _)| k.ends_with(".failed.outside_support")));
+        // b covers indirect light only when the pass is on: the Cornell box's direct light is about
+        // three quarters of the image.
+        let b = |o: &RenderOutput| meta(o, "hslt.mlt.normalization").unwrap().parse::<f64>().unwrap();
+        let ratio = b(&split) / b(&whole);
+        assert!((0.1..0.5).contains(&ratio), "{}: b with the pass / without {ratio:.3}", kind.name());
+    }
+}
