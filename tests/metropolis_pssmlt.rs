@@ -212,31 +212,33 @@ impl Mutation<Point, PssSampler> for ToyStep {
     }
 }
 
-#[test]
-fn chain_with_expected_values_reproduces_a_known_integral() {
-    // 32 independent chains each estimate the ten bin integrals ∫ f over [k/10, (k+1)/10) as
-    // b · Σ (recorded weight in bin) / M with the exact b = ∫ f; the chains are independent, so their
-    // spread gives the standard error and 5 of them allow a false failure about once in 10^6 per bin.
-    let b = toy_integral(0.0, 1.0);
-    let (chains, steps, bins) = (32, 20_000, 10);
+/// Runs 32 independent toy chains of 20 000 steps (seed `seed`), restricted to u >= `support` when it
+/// is positive, and returns each chain's estimate of the `bins` bin integrals, b · Σ (recorded weight
+/// in bin) / M with the exact b over the support, and every chain's statistics.
+fn toy_chains(seed: u64, bins: usize, support: f32) -> (Vec<Vec<f64>>, Vec<MutationStats>) {
+    let b = toy_integral(support as f64, 1.0);
+    let (chains, steps) = (32, 20_000);
     let mut estimates = vec![Vec::new(); bins];
-    let mut zero_rejections = 0;
+    let mut all_stats = Vec::new();
     for c in 0..chains {
         // Start at a uniform point of positive f (the chain mixes fast enough that the start-up bias
-        // of not drawing it in proportion to f is negligible at this tolerance).
+        // of not drawing it in proportion to f is negligible at the tests' tolerance).
         let (mut pss, start) = (1..)
             .map(|attempt| {
-                let mut pss = PssSampler::new(Sampler::new(21, c, 100 + attempt), 1);
+                let mut pss = PssSampler::new(Sampler::new(seed, c, 100 + attempt), 1);
                 let u = pss.next_1d();
                 (pss, Point { u })
             })
-            .find(|(_, p)| toy_f(p.u as f64) > 0.0)
+            .find(|(_, p)| p.u >= support && toy_f(p.u as f64) > 0.0)
             .unwrap();
         let mutations = vec![
             WeightedMutation { mutation: Box::new(ToyStep { large: true }), weight: 0.3 },
             WeightedMutation { mutation: Box::new(ToyStep { large: false }), weight: 0.7 },
         ];
-        let mut chain = Chain::new(start, mutations, TargetFunction::Luminance, Sampler::new(21, c, 2));
+        let mut chain = Chain::new(start, mutations, TargetFunction::Luminance, Sampler::new(seed, c, 2));
+        if support > 0.0 {
+            chain = chain.with_support(Box::new(move |p: &Point| p.u >= support));
+        }
         let mut histogram = vec![0.0f64; bins];
         let mut record = |p: &Point, w: f64| {
             histogram[((p.u as f64 * bins as f64) as usize).min(bins - 1)] += w * toy_f(p.u as f64);
@@ -260,8 +262,19 @@ fn chain_with_expected_values_reproduces_a_known_integral() {
                     + s.failed_total()
             );
         }
-        zero_rejections += stats.iter().map(|s| s.rejected_zero).sum::<u64>();
+        all_stats.extend_from_slice(stats);
     }
+    (estimates, all_stats)
+}
+
+#[test]
+fn chain_with_expected_values_reproduces_a_known_integral() {
+    // 32 independent chains each estimate the ten bin integrals ∫ f over [k/10, (k+1)/10); the chains
+    // are independent, so their spread gives the standard error and 5 of them allow a false failure
+    // about once in 10^6 per bin.
+    let bins = 10;
+    let (estimates, stats) = toy_chains(21, bins, 0.0);
+    let zero_rejections: u64 = stats.iter().map(|s| s.rejected_zero).sum();
     assert!(zero_rejections > 0, "proposals into the zero region must be counted as zero rejections");
     for (k, est) in estimates.iter().enumerate() {
         let exact = toy_integral(k as f64 / bins as f64, (k + 1) as f64 / bins as f64);
@@ -281,48 +294,9 @@ fn chain_restricted_to_a_support_samples_the_target_on_it_alone() {
     // The toy target restricted to u >= 0.25 (how chains leave direct-lighting paths to a separate
     // pass): every bin below gets nothing, proposals there are counted as outside the support, and
     // the bins above reproduce their integrals with b = ∫ f over the support alone.
-    let b = toy_integral(0.25, 1.0);
-    let (chains, steps, bins) = (32, 20_000, 8);
-    let mut estimates = vec![Vec::new(); bins];
-    let mut outside = 0;
-    for c in 0..chains {
-        let (mut pss, start) = (1..)
-            .map(|attempt| {
-                let mut pss = PssSampler::new(Sampler::new(22, c, 100 + attempt), 1);
-                let u = pss.next_1d();
-                (pss, Point { u })
-            })
-            .find(|(_, p)| p.u >= 0.25 && toy_f(p.u as f64) > 0.0)
-            .unwrap();
-        let mutations = vec![
-            WeightedMutation { mutation: Box::new(ToyStep { large: true }), weight: 0.3 },
-            WeightedMutation { mutation: Box::new(ToyStep { large: false }), weight: 0.7 },
-        ];
-        let mut chain = Chain::new(start, mutations, TargetFunction::Luminance, Sampler::new(22, c, 2))
-            .with_support(Box::new(|p: &Point| p.u >= 0.25));
-        let mut histogram = vec![0.0f64; bins];
-        let mut record = |p: &Point, w: f64| {
-            histogram[((p.u as f64 * bins as f64) as usize).min(bins - 1)] += w * toy_f(p.u as f64);
-        };
-        for _ in 0..steps {
-            chain.step(&mut pss, &mut record);
-        }
-        for (k, h) in histogram.iter().enumerate() {
-            estimates[k].push(h * b / steps as f64);
-        }
-        for s in chain.stats() {
-            assert_eq!(
-                s.proposed,
-                s.accepted
-                    + s.rejected
-                    + s.rejected_zero
-                    + s.rejected_invalid
-                    + s.not_applicable
-                    + s.failed_total()
-            );
-            outside += s.failed.get(OUTSIDE_SUPPORT).copied().unwrap_or(0);
-        }
-    }
+    let bins = 8;
+    let (estimates, stats) = toy_chains(22, bins, 0.25);
+    let outside: u64 = stats.iter().map(|s| s.failed.get(OUTSIDE_SUPPORT).copied().unwrap_or(0)).sum();
     assert!(outside > 0, "proposals below the support must be counted");
     for (k, est) in estimates.iter().enumerate() {
         let (lo, hi) = (k as f64 / bins as f64, (k + 1) as f64 / bins as f64);

@@ -103,7 +103,7 @@ pub fn render_into(
     metadata: &mut Vec<(String, String)>,
 ) {
     let (samples, time_limit) = pass.budget(options);
-    if !pass.enabled() || samples == Some(0) || chain_bdpt.min_path_vertices <= 2 {
+    if !pass.enabled() || chain_bdpt.min_path_vertices <= 2 {
         return;
     }
     let mut direct = chain_bdpt.clone();
