@@ -16,7 +16,6 @@ use hslt::metropolis::{
 use hslt::render::RenderOptions;
 use hslt::sampling::Sampler;
 use hslt::scene::Scene;
-use hslt::spectrum::luminance;
 use std::path::Path;
 use std::sync::atomic::AtomicBool;
 
@@ -30,7 +29,7 @@ fn scene(rel: &str, defines: &[(&str, &str)]) -> Scene {
 }
 
 fn target(state: &PathState) -> f64 {
-    luminance(state.contribution) as f64
+    state.luminance()
 }
 
 /// ln of |det J| · Π_Dirac |dω_o/dh⊥|, the factor between the half-vector kernel and the chain's measure.

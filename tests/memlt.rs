@@ -170,7 +170,7 @@ fn pairs(scene: &Scene, mutation: &mut ManifoldPerturbation, draws: usize, pool:
         let r = match result {
             Ok(p) => {
                 assert!(p.t_ratio.is_finite() && p.t_ratio >= 0.0, "t_ratio {}", p.t_ratio);
-                let r = target.eval(p.state.contribution) * p.t_ratio / target.eval(x.contribution);
+                let r = target.of(&p.state) * p.t_ratio / target.of(&x);
                 assert!(r.is_finite(), "R = {r}");
                 out.valid += 1;
                 Some(r)

@@ -6,7 +6,7 @@
 use hslt::cli::load_scene;
 use hslt::integrators::{Bdpt, DepthLimits};
 use hslt::metropolis::pssmlt::PssContext;
-use hslt::metropolis::{PathSeeds, PathState, Pssmlt};
+use hslt::metropolis::{PathSeeds, PathState, Pssmlt, TargetFunction};
 use hslt::path::{mis_weight, MisHeuristic, PathView, Vertex};
 use hslt::sampling::Sampler;
 use hslt::scene::Scene;
@@ -93,7 +93,7 @@ fn rebuilt_strategy_paths_evaluate_to_what_bdpt_weighted() {
                     let view = PathView::whole(&path);
                     let pdfs = view.pdfs(&scene);
                     let w = mis_weight(&scene, &view, &pdfs, c.t, MisHeuristic::Power) as f64;
-                    let expected = luminance(state.contribution) as f64 * w / p;
+                    let expected = state.luminance() * w / p;
                     let got = luminance(c.value) as f64;
                     assert!(
                         (expected - got).abs() <= 1e-2 * got.max(expected) + 1e-12,
@@ -117,7 +117,7 @@ fn rebuilt_strategy_paths_evaluate_to_what_bdpt_weighted() {
                 if p.is_nan() || p <= 0.0 {
                     continue;
                 }
-                let expected = luminance(state.contribution) as f64 * w / p;
+                let expected = state.luminance() * w / p;
                 let got = luminance(c.value) as f64;
                 // Sampled throughputs (weight = f cos / pdf, in f32 per bounce) and the from-scratch
                 // evaluation differ by rounding of order 1e-3 on long glossy paths; a wrong vertex or
@@ -172,4 +172,56 @@ fn seed_draws_follow_the_weighted_contributions() {
         (mean - expected_len).abs() <= 5.0 * se,
         "mean drawn path length {mean:.4} ± {se:.4}, expected {expected_len:.4}"
     );
+}
+
+/// Light trapped in the jewelry scene's diamond by total internal reflection makes BDPT paths of
+/// dozens of vertices whose f in product area measure (one 1/d² and one near-specular BSDF peak per
+/// vertex) overflows f32. Every one must still become a chain state, with f carried as colour · scale:
+/// before, they evaluated to ∞ and were dropped, so seeds on them were redrawn elsewhere and no
+/// mutation could reach them; the path-space images lost a fifth of the diamond's light.
+///
+/// A few paths BDPT weights do evaluate to zero: a Beckmann peak of α = 0.02 far off its lobe
+/// underflows f32 in the evaluated BSDF, while BDPT's sampled weight never forms it. Their share of
+/// the light is bounded here instead.
+#[test]
+fn paths_whose_contribution_overflows_f32_are_still_states() {
+    let scene = scene("scenes/jewelry/scene.xml");
+    let bdpt = bdpt(&scene);
+    let (mut states, mut scaled, mut longest) = (0usize, 0usize, 0usize);
+    let (mut total, mut lost) = (0.0f64, 0.0f64);
+    for i in 0..20_000 {
+        let mut ctx = PssContext::new(&scene, &bdpt, Pssmlt::seed_pss(5, i));
+        let (_, sub) = ctx.evaluate_with_paths();
+        for c in ctx.contributions() {
+            let y = luminance(c.value) as f64;
+            if !(y > 0.0 && y.is_finite()) {
+                continue;
+            }
+            total += y;
+            let path = c.path(&sub);
+            let n = path.len();
+            let Some(state) = PathState::new(&scene, path) else {
+                lost += y;
+                continue;
+            };
+            let target = TargetFunction::Luminance.of(&state);
+            assert!(target > 0.0 && target.is_finite(), "{n} vertices: target {target:e}");
+            assert!((target - state.luminance()).abs() <= 1e-9 * target);
+            if state.scale != 1.0 {
+                scaled += 1;
+                // The colour is normalised to its largest channel, so the scale holds the magnitude.
+                assert!((state.contribution.max_element() - 1.0).abs() < 1e-6);
+                assert!(state.scale > 1e30 || state.scale < 1e-30, "scale {:e} needlessly", state.scale);
+            }
+            states += 1;
+            longest = longest.max(n);
+        }
+    }
+    println!(
+        "{states} states, {scaled} beyond f32's comfortable range, longest {longest} vertices; \
+         {:.2e} of the weighted light on paths that evaluate to nothing",
+        lost / total
+    );
+    assert!(scaled > 0, "no path of the diamond left f32's range ({states} states, longest {longest})");
+    assert!(lost <= 1e-5 * total, "{:.2e} of BDPT's light has no chain state", lost / total);
 }

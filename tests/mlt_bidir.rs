@@ -37,7 +37,7 @@ fn small_scene(rel: &str) -> Scene {
 }
 
 fn target(state: &PathState) -> f64 {
-    TargetFunction::Luminance.eval(state.contribution)
+    TargetFunction::Luminance.of(state)
 }
 
 /// What `proposals` bidirectional mutations from stationary starting paths gave.
@@ -419,7 +419,7 @@ fn degenerate_paths_give_counted_failures_never_nan() {
         }
         let mut vertices = x.vertices.clone();
         vertices.insert(1, vertices[1]);
-        let degenerate = PathState { vertices, contribution: x.contribution, film: x.film };
+        let degenerate = PathState { vertices, contribution: x.contribution, scale: x.scale, film: x.film };
         let mutations = vec![WeightedMutation {
             mutation: Box::new(BidirectionalMutation) as Box<dyn Mutation<PathState, PathContext>>,
             weight: 1.0,
@@ -491,7 +491,7 @@ fn dirac_density_pass_reproduces_bdpt_on_specular_paths() {
             let pdfs = view.dirac_pdfs(&scene);
             let p = PathView::strategy_pdf(&pdfs, c.t);
             let w = mis_weight(&scene, &view, &view.pdfs(&scene), c.t, MisHeuristic::Power) as f64;
-            let expected = luminance(state.contribution) as f64 * w / p;
+            let expected = state.luminance() * w / p;
             let got = luminance(c.value) as f64;
             let rel = (expected - got).abs() / got.max(expected).max(1e-30);
             assert!(rel <= 2e-2, "strategy ({}, {}): BDPT {got:.6e}, w f / p {expected:.6e}", c.s, c.t);
@@ -546,7 +546,7 @@ fn large_step_proposals_are_unbiased_samples_of_the_path_integral() {
                         let forward = largestep::density(&scene, &bdpt, &p.state.vertices);
                         let reverse = largestep::density(&scene, &bdpt, &x.vertices);
                         assert!((p.t_ratio - reverse / forward).abs() <= 1e-12 * p.t_ratio, "{rel}: ratio");
-                        luminance(p.state.contribution) as f64 / forward
+                        p.state.luminance() / forward
                     }
                     Err(_) => 0.0,
                 })

@@ -85,7 +85,7 @@ fn mutation<'a>(kind: MutationKind, scene: &Scene) -> Box<dyn Mutation<PathState
 }
 
 fn target(state: &PathState) -> f64 {
-    TargetFunction::Luminance.eval(state.contribution)
+    TargetFunction::Luminance.of(state)
 }
 
 /// What the detailed-balance check measured for one mutation on one scene.

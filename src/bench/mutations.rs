@@ -15,7 +15,6 @@ use crate::metropolis::{Failure, Mutation, MutationStats, PathContext, PathSeeds
 use crate::path::Vertex;
 use crate::sampling::Sampler;
 use crate::scene::Scene;
-use crate::spectrum::luminance;
 use glam::DVec2;
 use std::fmt::Write as _;
 use std::hash::{Hash, Hasher};
@@ -61,8 +60,7 @@ fn run_pass(
         match mutation.propose(x, &mut ctx, &mut rng, &mut stats) {
             Ok(p) => {
                 built += 1;
-                let ratio =
-                    luminance(p.state.contribution) as f64 * p.t_ratio / luminance(x.contribution) as f64;
+                let ratio = p.state.luminance() * p.t_ratio / x.luminance();
                 if ratio.is_finite() {
                     acceptance_sum += ratio.min(1.0);
                 }

@@ -8,8 +8,14 @@ use std::collections::BTreeMap;
 
 /// Something a chain walks over: a path (Veach's MLT) or a primary-sample vector's sample (PSSMLT).
 pub trait ChainState {
-    /// The total measurement contribution that the target function scores.
+    /// The total measurement contribution that the target function scores, up to `scale`.
     fn contribution(&self) -> Spectrum;
+
+    /// The factor f = `contribution` · scale, for states whose f lies outside f32's range (path-space
+    /// paths through small near-specular objects); 1 for every other state.
+    fn scale(&self) -> f64 {
+        1.0
+    }
 
     /// Whether every value the state would record is finite and non-negative; invalid proposals are
     /// rejected and counted, never recorded.
@@ -36,6 +42,21 @@ impl TargetFunction {
         match self {
             TargetFunction::Luminance => y,
             TargetFunction::LuminancePower(p) => y.powf(p),
+        }
+    }
+
+    /// The target of a state, its scale included.
+    pub fn of<S: ChainState + ?Sized>(self, state: &S) -> f64 {
+        let y = self.eval(state.contribution());
+        let scale = state.scale();
+        let scaled = match self {
+            TargetFunction::Luminance => y * scale,
+            TargetFunction::LuminancePower(p) => y * scale.powf(p),
+        };
+        if scaled.is_finite() {
+            scaled
+        } else {
+            0.0
         }
     }
 }
@@ -174,7 +195,7 @@ impl<S: ChainState, C> Chain<S, C> {
         target: TargetFunction,
         rng: Sampler,
     ) -> Chain<S, C> {
-        let current_target = target.eval(start.contribution());
+        let current_target = target.of(&start);
         assert!(current_target > 0.0 && current_target.is_finite(), "a chain must start where f > 0");
         assert!(!mutations.is_empty(), "a chain needs at least one mutation");
         let total_weight = mutations.iter().map(|m| m.weight.max(0.0)).sum::<f64>();
@@ -246,7 +267,7 @@ impl<S: ChainState, C> Chain<S, C> {
             return;
         }
         let valid = proposal.state.is_valid() && proposal.t_ratio.is_finite() && proposal.t_ratio >= 0.0;
-        let proposed_target = if valid { self.target.eval(proposal.state.contribution()) } else { 0.0 };
+        let proposed_target = if valid { self.target.of(&proposal.state) } else { 0.0 };
         if !valid || !(proposed_target > 0.0) {
             if valid {
                 stats.rejected_zero += 1;

@@ -185,7 +185,7 @@ impl PathMlt {
         let target = self.settings.target;
         for _ in 0..START_ATTEMPTS {
             let Some(start) = seeds.draw(scene, &self.bdpt, seed, rng.next_f64()) else { continue };
-            if target.eval(start.contribution) > 0.0 {
+            if target.of(&start) > 0.0 {
                 let mutations = self.build_mutations(scene);
                 if mutations.is_empty() {
                     return None;

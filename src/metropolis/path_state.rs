@@ -18,7 +18,10 @@ use crate::spectrum::Spectrum;
 #[derive(Clone, Debug)]
 pub struct PathState {
     pub vertices: Vec<Vertex>,
+    /// f(X) = `contribution` · `scale` (`PathView::contribution_scaled`): `scale` is 1 unless f lies
+    /// outside f32's range, as on long paths through small near-specular objects.
     pub contribution: Spectrum,
+    pub scale: f64,
     pub film: Vec2,
 }
 
@@ -36,12 +39,20 @@ impl PathState {
         if !(film.x >= 0.0 && film.y >= 0.0 && film.x < w && film.y < h) {
             return None;
         }
-        let contribution = view.contribution(scene);
-        if !contribution.is_finite() || contribution.min_element() < 0.0 || contribution.max_element() <= 0.0
+        let (contribution, scale) = view.contribution_scaled(scene);
+        if !contribution.is_finite()
+            || contribution.min_element() < 0.0
+            || contribution.max_element() <= 0.0
+            || !(scale.is_finite() && scale > 0.0)
         {
             return None;
         }
-        Some(PathState { vertices, contribution, film })
+        Some(PathState { vertices, contribution, scale, film })
+    }
+
+    /// luminance(f(X)) in f64, with the scale applied.
+    pub fn luminance(&self) -> f64 {
+        crate::spectrum::luminance(self.contribution) as f64 * self.scale
     }
 
     pub fn view(&self) -> PathView<'_> {
@@ -62,11 +73,20 @@ impl ChainState for PathState {
     fn contribution(&self) -> Spectrum {
         self.contribution
     }
+
+    fn scale(&self) -> f64 {
+        self.scale
+    }
 }
 
 impl FilmState for PathState {
     fn splat(&self, weight: f64, out: &mut Vec<Splat>) {
-        out.push(Splat { pos: self.film, value: self.contribution * weight as f32, layer: None });
+        // weight holds 1/target, so weight · scale is of the order of 1/|contribution|.
+        out.push(Splat {
+            pos: self.film,
+            value: self.contribution * (weight * self.scale) as f32,
+            layer: None,
+        });
     }
 }
 

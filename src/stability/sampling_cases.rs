@@ -17,7 +17,6 @@ use super::Case;
 use crate::integrators::{Bdpt, DepthLimits};
 use crate::metropolis::{MutationStats, PathSeeds, PathState};
 use crate::scene::Scene;
-use crate::spectrum::luminance;
 
 pub fn cases() -> Vec<Case> {
     vec![
@@ -87,7 +86,7 @@ fn seeding(scene: &Scene, bdpt: &Bdpt, seed: u64, paths: usize) -> PathSeeds {
 }
 
 fn target(state: &PathState) -> f64 {
-    luminance(state.contribution) as f64
+    state.luminance()
 }
 
 /// Mean and standard error of the mean (0 spread for fewer than two values).

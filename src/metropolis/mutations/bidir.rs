@@ -18,17 +18,17 @@ use crate::sampling::Sampler;
 use crate::scene::Scene;
 use crate::spectrum::Spectrum;
 
-/// Longest path (in edges) the mutation proposes, whatever the depth limit: beyond it the two-tailed
-/// length distribution has no measurable mass left and the density sums only cost time.
-const MAX_EDGES: usize = 64;
-
 pub struct BidirectionalMutation;
 
 /// Edge counts the mutation may propose: a 1-edge path (the camera sees the emitter) lies outside the
-/// integrated space when emitters are hidden.
+/// integrated space when emitters are hidden. The longest is the seeding pass's own limit: b counts
+/// every path BDPT can make, so a shorter cap would leave the longer ones' energy in b with no state
+/// to carry it, and a chain started on such a path could never leave it (its reverse move would have
+/// zero density). Light trapped in a lossless gem by total internal reflection makes such paths
+/// common: on the jewelry scene paths of more than 24 segments carry a tenth of the diamond's light.
 pub(super) fn edge_range(bdpt: &Bdpt) -> (usize, usize) {
     let k_min = if bdpt.hide_emitters { 2 } else { 1 };
-    let k_max = bdpt.max_path_vertices().saturating_sub(1).min(MAX_EDGES);
+    let k_max = bdpt.max_path_vertices().saturating_sub(1);
     (k_min, k_max)
 }
 
@@ -36,21 +36,35 @@ fn two_tailed_weight(centre: usize, value: usize) -> f64 {
     0.5f64.powi(value.abs_diff(centre).min(1000) as i32)
 }
 
+/// Σ_{j=a..=b} 2^−j (zero when a > b).
+fn geometric_sum(a: usize, b: usize) -> f64 {
+    if a > b {
+        return 0.0;
+    }
+    2.0 * (0.5f64.powi(a.min(1100) as i32) - 0.5f64.powi((b + 1).min(1100) as i32))
+}
+
+/// Σ_{v=lo..=hi} 2^−|v − centre| in closed form: a path of hundreds of edges would otherwise pay a
+/// sum over every length at each proposal.
+fn two_tailed_total(centre: usize, lo: usize, hi: usize) -> f64 {
+    let below = if lo <= centre { geometric_sum(centre.saturating_sub(hi), centre - lo) } else { 0.0 };
+    let above = if hi > centre { geometric_sum(lo.saturating_sub(centre).max(1), hi - centre) } else { 0.0 };
+    below + above
+}
+
 /// P(value) for the two-tailed geometric distribution ∝ 2^−|value − centre| on [lo, hi].
 pub(super) fn two_tailed_pmf(centre: usize, lo: usize, hi: usize, value: usize) -> f64 {
     if lo > hi || value < lo || value > hi {
         return 0.0;
     }
-    let total: f64 = (lo..=hi).map(|v| two_tailed_weight(centre, v)).sum();
-    two_tailed_weight(centre, value) / total
+    two_tailed_weight(centre, value) / two_tailed_total(centre, lo, hi)
 }
 
 pub(super) fn sample_two_tailed(centre: usize, lo: usize, hi: usize, u: f64) -> Option<usize> {
     if lo > hi {
         return None;
     }
-    let total: f64 = (lo..=hi).map(|v| two_tailed_weight(centre, v)).sum();
-    let mut rest = u * total;
+    let mut rest = u * two_tailed_total(centre, lo, hi);
     for v in lo..=hi {
         rest -= two_tailed_weight(centre, v);
         if rest < 0.0 {
@@ -396,7 +410,9 @@ mod tests {
 
     #[test]
     fn two_tailed_lengths_are_normalised_and_sampled_by_their_pmf() {
-        for (centre, lo, hi) in [(3, 1, 8), (1, 2, 64), (70, 1, 64), (2, 2, 2)] {
+        for (centre, lo, hi) in
+            [(3, 1, 8), (1, 2, 64), (70, 1, 64), (2, 2, 2), (200, 1, 255), (40, 45, 255), (0, 0, 5)]
+        {
             let total: f64 = (lo..=hi).map(|v| two_tailed_pmf(centre, lo, hi, v)).sum();
             assert!((total - 1.0).abs() < 1e-12, "({centre}, {lo}, {hi}): sums to {total}");
             assert_eq!(two_tailed_pmf(centre, lo, hi, hi + 1), 0.0);
@@ -414,6 +430,25 @@ mod tests {
             }
         }
         assert_eq!(sample_two_tailed(2, 3, 1, 0.5), None);
+    }
+
+    #[test]
+    fn the_closed_form_normaliser_equals_the_sum() {
+        for centre in 0..40 {
+            for lo in 0..12 {
+                for hi in [lo, lo + 1, 20, 39, 255] {
+                    if hi < lo {
+                        continue;
+                    }
+                    let direct: f64 = (lo..=hi).map(|v| two_tailed_weight(centre, v)).sum();
+                    let closed = two_tailed_total(centre, lo, hi);
+                    assert!(
+                        (closed - direct).abs() < 1e-12 * direct,
+                        "({centre}, {lo}, {hi}): {closed} vs {direct}"
+                    );
+                }
+            }
+        }
     }
 
     #[test]

@@ -18,7 +18,7 @@ use crate::metropolis::{
 use crate::path::Vertex;
 use crate::sampling::Sampler;
 use crate::scene::Scene;
-use crate::spectrum::{luminance, Spectrum};
+use crate::spectrum::Spectrum;
 
 /// The BDPT the scene's integrator settings describe: it seeds the chains and bounds their depth.
 pub fn bdpt(scene: &Scene) -> Bdpt {
@@ -27,7 +27,7 @@ pub fn bdpt(scene: &Scene) -> Bdpt {
 }
 
 pub fn target(state: &PathState) -> f64 {
-    luminance(state.contribution) as f64
+    state.luminance()
 }
 
 /// Up to `count` paths drawn ∝ target from a seeding pass of `seed_paths` BDPT samples that satisfy

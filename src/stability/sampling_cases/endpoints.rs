@@ -77,7 +77,7 @@ pub fn run(effort: Effort) -> CaseReport {
     for x in &starts {
         let v = &x.vertices;
         let vertices = vec![v[0], v[1], v[1], v[2]];
-        let state = PathState { contribution: x.contribution, film: x.film, vertices };
+        let state = PathState { contribution: x.contribution, scale: x.scale, film: x.film, vertices };
         repeated.add(mutation.propose(&state, &mut ctx, &mut rng, &mut stats));
     }
     report.measure(format!("x_1 = x_2 repeated: {}", repeated.describe()));
@@ -94,7 +94,7 @@ pub fn run(effort: Effort) -> CaseReport {
             let mut vertices = x.vertices.clone();
             vertices[2].p = vertices[1].p + vertices[1].ng * eps;
             let contribution = crate::path::PathView::whole(&vertices).contribution(&scene);
-            let state = PathState { vertices, contribution, film: x.film };
+            let state = PathState { vertices, contribution, scale: 1.0, film: x.film };
             out.add(mutation.propose(&state, &mut ctx, &mut rng, &mut stats));
         }
         report.check(out.invalid == 0, format!("ε = {eps:e}: {} proposals carry NaN/inf", out.invalid));
