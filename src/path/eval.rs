@@ -66,8 +66,8 @@ impl<'a> PathView<'a> {
 
     /// f(X) as `colour · scale`, for paths whose f lies outside f32's range. In product area measure f
     /// carries one 1/d² and one BSDF peak per vertex, so a path bouncing inside a small near-specular
-    /// gem reaches 10^40 within twenty vertices (jewelry: the diamond's trapped light) and overflows
-    /// f32, while the ratios Metropolis forms from it stay O(1). The product is formed in f64, the
+    /// gem can leave f32's range within a few dozen vertices (jewelry: the diamond's trapped light),
+    /// while the ratios Metropolis forms from it stay O(1). The product is formed in f64, the
     /// factors of each vertex together; `scale` is 1 whenever the f32 value is comfortably in range, so
     /// ordinary paths keep their exact f32 contribution.
     pub fn contribution_scaled(&self, scene: &Scene) -> (Spectrum, f64) {
@@ -75,31 +75,27 @@ impl<'a> PathView<'a> {
         if n < 2 || self.get(0).kind != VertexKind::Camera {
             return (Spectrum::ZERO, 1.0);
         }
-        let wide = |s: Spectrum| glam::DVec3::new(s.x as f64, s.y as f64, s.z as f64);
         let (x0, x1) = (self.get(0), self.get(1));
         let mut f = glam::DVec3::splat(scene.camera.importance(x0.direction_to(x1)) as f64);
         for i in 0..n - 1 {
             f *= geometry_term(self.get(i), self.get(i + 1)) as f64;
             if i + 1 < n - 1 {
                 let v = self.get(i + 1);
-                f *= wide(v.scatter_factor(
-                    scene,
-                    v.direction_to(self.get(i)),
-                    v.direction_to(self.get(i + 2)),
-                ));
+                f *= v
+                    .scatter_factor(scene, v.direction_to(self.get(i)), v.direction_to(self.get(i + 2)))
+                    .as_dvec3();
             }
         }
         let (last, before) = (self.get(n - 1), self.get(n - 2));
-        f *= wide(last.emitted(scene, last.direction_to(before)));
-        let narrow = Spectrum::new(f.x as f32, f.y as f32, f.z as f32);
+        f *= last.emitted(scene, last.direction_to(before)).as_dvec3();
+        let narrow = f.as_vec3();
         let peak = f.max_element();
         // Non-finite stays non-finite (callers reject it); f32 keeps ~7 digits down to 1e-38, and the
         // margin leaves room for the callers' products.
         if !f.is_finite() || !(peak > 0.0) || (1e-30..=1e30).contains(&peak) {
             return (narrow, 1.0);
         }
-        let colour = f / peak;
-        (Spectrum::new(colour.x as f32, colour.y as f32, colour.z as f32), peak)
+        ((f / peak).as_vec3(), peak)
     }
 
     /// Film position of the path (where x_1 is seen from the camera).

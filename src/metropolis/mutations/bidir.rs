@@ -25,7 +25,8 @@ pub struct BidirectionalMutation;
 /// every path BDPT can make, so a shorter cap would leave the longer ones' energy in b with no state
 /// to carry it, and a chain started on such a path could never leave it (its reverse move would have
 /// zero density). Light trapped in a lossless gem by total internal reflection makes such paths
-/// common: on the jewelry scene paths of more than 24 segments carry a tenth of the diamond's light.
+/// common: on the jewelry scene paths of more than 24 segments carry a tenth of the light seen in the
+/// diamond.
 pub(super) fn edge_range(bdpt: &Bdpt) -> (usize, usize) {
     let k_min = if bdpt.hide_emitters { 2 } else { 1 };
     let k_max = bdpt.max_path_vertices().saturating_sub(1);
