@@ -174,31 +174,34 @@ impl PathMlt {
             .collect()
     }
 
+    /// A chain on a drawn seed path, and how many draws it took beyond the first: a draw whose path
+    /// does not evaluate (f zero or out of range) is redrawn, which moves that path's share of b onto
+    /// others, so the count goes into the metadata (it exposed f32 overflow on jewelry's diamond).
     fn start_chain<'a>(
         &'a self,
         scene: &'a Scene,
         seeds: &PathSeeds,
         seed: u64,
         chain_index: usize,
-    ) -> Option<ChainRunner<PathState, PathContext<'a>>> {
+    ) -> (Option<ChainRunner<PathState, PathContext<'a>>>, usize) {
         let mut rng = Sampler::new(seed, chain_index as u64, CHAIN_STREAM);
         let target = self.settings.target;
-        for _ in 0..START_ATTEMPTS {
+        for attempt in 0..START_ATTEMPTS {
             let Some(start) = seeds.draw(scene, &self.bdpt, seed, rng.next_f64()) else { continue };
             if target.of(&start) > 0.0 {
                 let mutations = self.build_mutations(scene);
                 if mutations.is_empty() {
-                    return None;
+                    return (None, attempt);
                 }
                 let mut chain = Chain::new(start, mutations, target, rng);
                 if self.bdpt.min_path_vertices > 2 {
                     let min_vertices = self.bdpt.min_path_vertices;
                     chain = chain.with_support(Box::new(move |s: &PathState| s.len() >= min_vertices));
                 }
-                return Some(ChainRunner { chain, ctx: PathContext::new(scene, &self.bdpt) });
+                return (Some(ChainRunner { chain, ctx: PathContext::new(scene, &self.bdpt) }), attempt);
             }
         }
-        None
+        (None, START_ATTEMPTS)
     }
 }
 
@@ -248,9 +251,13 @@ impl Integrator for PathMlt {
         };
         let n_chains = self.settings.chains.max(1).min(total_mutations.min(1 << 32) as usize);
         let chains_start = Instant::now();
-        let mut chains: Vec<Box<dyn RunningChain + '_>> = (0..n_chains)
-            .into_par_iter()
-            .filter_map(|c| self.start_chain(scene, &seeds, seed, c))
+        let started: Vec<_> =
+            (0..n_chains).into_par_iter().map(|c| self.start_chain(scene, &seeds, seed, c)).collect();
+        let redraws: usize = started.iter().map(|(_, r)| r).sum();
+        metadata.push(("hslt.mlt.seed_redraws".into(), redraws.to_string()));
+        let mut chains: Vec<Box<dyn RunningChain + '_>> = started
+            .into_iter()
+            .filter_map(|(c, _)| c)
             .map(|c| Box::new(c) as Box<dyn RunningChain + '_>)
             .collect();
         if chains.len() < n_chains {
