@@ -174,8 +174,8 @@ impl PathMlt {
             .collect()
     }
 
-    /// A chain on a drawn seed path, and how many draws it took beyond the first: a draw whose path
-    /// does not evaluate (f zero or out of range) is redrawn, which moves that path's share of b onto
+    /// A chain on a drawn seed path, and how many of its draws failed: a draw whose path does not
+    /// evaluate (f zero or out of range) is redrawn, which moves that path's share of b onto
     /// others, so the count goes into the metadata (it exposed f32 overflow on jewelry's diamond).
     fn start_chain<'a>(
         &'a self,
