@@ -34,6 +34,7 @@ pub enum TargetFunction {
 }
 
 impl TargetFunction {
+    /// The target of a bare contribution; a state is scored with `of`, which applies its scale.
     pub fn eval(self, contribution: Spectrum) -> f64 {
         let y = luminance(contribution) as f64;
         if !(y > 0.0) || !y.is_finite() {

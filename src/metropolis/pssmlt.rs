@@ -164,7 +164,7 @@ impl<'a> Mutation<PssSample, PssContext<'a>> for PssStep {
         ctx.pss.start_iteration(self.large);
         let state = ctx.evaluate();
         if self.large {
-            let y = if state.is_valid() { self.target.eval(state.contribution) } else { 0.0 };
+            let y = if state.is_valid() { self.target.of(&state) } else { 0.0 };
             stats.add_sum(LARGE_STEP_TARGET, y);
         }
         Ok(Proposal { state, t_ratio: 1.0 })
@@ -216,7 +216,7 @@ impl Pssmlt {
         // Chains that start from the same seed sample must still diverge.
         ctx.pss.reseed(Sampler::new(seed, chain_index as u64, CHAIN_PSS_STREAM));
         let target = self.settings.target;
-        if !(start.is_valid() && target.eval(start.contribution) > 0.0) {
+        if !(start.is_valid() && target.of(&start) > 0.0) {
             // Replaying a seed sample is deterministic, so this means the seed pass itself was wrong.
             debug_assert!(false, "seed sample {start_index} does not replay");
             return None;
@@ -284,7 +284,7 @@ impl Integrator for Pssmlt {
                     let sample = ctx.evaluate();
                     rays += ctx.counters.rays;
                     if sample.is_valid() {
-                        targets.push(target.eval(sample.contribution));
+                        targets.push(target.of(&sample));
                     } else {
                         invalid += 1;
                         targets.push(0.0);
