@@ -9,7 +9,7 @@
 use hslt::cli::load_scene;
 use hslt::integrators::{Integrator, RenderOutput, TiledRenderer};
 use hslt::metropolis::mutations::bidir::{transition_density_between, BidirectionalMutation};
-use hslt::metropolis::mutations::largestep::{self, LargeStep};
+use hslt::metropolis::mutations::largestep::{LargeStep, LengthPmf};
 use hslt::metropolis::{
     Chain, Failure, MltSettings, Mutation, MutationKind, MutationStats, PathContext, PathMlt, PathSeeds,
     PathState, TargetFunction, WeightedMutation,
@@ -522,29 +522,39 @@ fn bidirectional_chains_reproduce_bdpt_under_a_spot_light() {
 
 #[test]
 fn large_step_proposals_are_unbiased_samples_of_the_path_integral() {
-    // The large step draws y from the fixed density p it reports (`largestep::density`), whatever the
+    // The large step draws y from the fixed density p it reports (`LargeStep::density`), whatever the
     // current path, so luminance(f(y)) / p(y), counting every failed proposal as 0, is an unbiased
     // estimate of ∫ luminance(f) dμ: the seeding pass's b. A density with a wrong factor, a missing
     // split or a sampler that drops some paths without saying so moves the mean; 5 standard errors
     // of the two independent estimates bound it. 2^23 proposals resolve 0.5% on the Cornell box: the
     // density once missed the s = 0 term of paths whose emitter was sampled on the light, which put
     // this estimate 0.5% (5 standard errors) above b. Each proposal's ratio is p(x)/p(y) exactly.
-    for (rel, proposals, seed_paths) in
-        [("scenes/cornell-box/scene.xml", 1 << 23, 1 << 17), ("scenes/caustic/scene.xml", 1 << 19, 1 << 14)]
-    {
+    // Lengths are drawn from the seeding pass's histogram mixed with the fixed pmf (as renders do), or
+    // from the fixed pmf alone ("fixed").
+    for (rel, proposals, seed_paths, seeded) in [
+        ("scenes/cornell-box/scene.xml", 1 << 23, 1 << 17, true),
+        ("scenes/caustic/scene.xml", 1 << 19, 1 << 14, true),
+        ("scenes/caustic/scene.xml", 1 << 19, 1 << 14, false),
+    ] {
         let scene = small_scene(rel);
         let bdpt = bdpt(&scene);
         let seeds = PathSeeds::run(&scene, &bdpt, 5, 1 << 16, &AtomicBool::new(false));
+        let mut large_step = LargeStep::default();
+        if seeded {
+            large_step.lengths = LengthPmf::from_histogram(&seeds.by_edges, &bdpt);
+            assert_ne!(large_step.lengths, LengthPmf::default(), "{rel}: the seeding pass has lengths");
+        }
+        let rel = if seeded { rel.to_string() } else { format!("{rel} (fixed)") };
         let samples: Vec<f64> = {
             let mut ctx = PathContext::new(&scene, &bdpt);
             let mut rng = Sampler::new(11, 0, 0);
             let mut stats = MutationStats::default();
             let x = seeds.draw(&scene, &bdpt, 5, 0.5).expect("a seed path");
             (0..proposals)
-                .map(|_| match LargeStep.propose(&x, &mut ctx, &mut rng, &mut stats) {
+                .map(|_| match large_step.propose(&x, &mut ctx, &mut rng, &mut stats) {
                     Ok(p) => {
-                        let forward = largestep::density(&scene, &bdpt, &p.state.vertices);
-                        let reverse = largestep::density(&scene, &bdpt, &x.vertices);
+                        let forward = large_step.density(&scene, &bdpt, &p.state.vertices);
+                        let reverse = large_step.density(&scene, &bdpt, &x.vertices);
                         assert!((p.t_ratio - reverse / forward).abs() <= 1e-12 * p.t_ratio, "{rel}: ratio");
                         p.state.luminance() / forward
                     }

@@ -11,6 +11,7 @@ use hslt::geometry::Vec2;
 use hslt::image::ImageBuf;
 use hslt::integrators::{make_with, Bdpt, DepthLimits, Integrator, IntegratorKind, IntegratorSettings};
 use hslt::metropolis::mutations::caustic::CausticPerturbation;
+use hslt::metropolis::mutations::hvlens::{self, HalfVectorLensPerturbation};
 use hslt::metropolis::mutations::lens::LensPerturbation;
 use hslt::metropolis::mutations::multichain::MultiChainPerturbation;
 use hslt::metropolis::mutations::{self, perturb};
@@ -79,9 +80,22 @@ fn seeds(scene: &Scene, bdpt: &Bdpt, seed: u64, n: usize) -> PathSeeds {
     seeds
 }
 
+/// The roughness below which the half-vector lens perturbation holds a glossy vertex in these tests:
+/// above the materials scene's gold (α = 0.15) and rough glass (α = 0.1) spheres, so its chains reflect
+/// and refract through held vertices (the default, 0.1, would hold neither).
+const HELD_BELOW: f32 = 0.2;
+
+fn settings_for(kind: MutationKind) -> MutationSettings {
+    let mut settings = MutationSettings::default();
+    if kind == MutationKind::HalfVectorLens {
+        settings.specular_threshold = HELD_BELOW;
+    }
+    settings
+}
+
 fn mutation<'a>(kind: MutationKind, scene: &Scene) -> Box<dyn Mutation<PathState, PathContext<'a>>> {
     assert!(kind.available(), "{} must be available", kind.name());
-    mutations::make(kind, &MutationSettings::default(), scene).expect("implemented mutation")
+    mutations::make(kind, &settings_for(kind), scene).expect("implemented mutation")
 }
 
 fn target(state: &PathState) -> f64 {
@@ -385,6 +399,94 @@ fn the_balance_identities_see_a_missing_jacobian() {
 }
 
 #[test]
+fn half_vector_lens_perturbation_satisfies_detailed_balance() {
+    // On the materials scene the chain runs through the held gold and rough glass spheres (reflection
+    // and refraction at fixed half vectors); on the caustic scene through Dirac glass only, where it
+    // is Veach's lens perturbation.
+    for rel in [MATERIALS, CAUSTIC] {
+        let b = balance(rel, MutationKind::HalfVectorLens, 60_000, 4);
+        assert_balanced(&b, &format!("hvlens on {rel}"), 0.05);
+    }
+}
+
+#[test]
+fn the_balance_identities_see_a_missing_half_vector_jacobian() {
+    // The ratio without dω_h/dω_o at the held vertices (a walk in half-vector space measured as if it
+    // were in directions) must fail the identities on the materials scene.
+    let without_jacobian = |scene: &Scene, x: &PathState, y: &PathState, t: f64| {
+        let jacobians = |p: &PathState| hvlens_jacobian_product(scene, &p.vertices);
+        t * jacobians(y) / jacobians(x)
+    };
+    let b = balance_with(MATERIALS, MutationKind::HalfVectorLens, 30_000, 4, &without_jacobian);
+    let ((m1, se1), (m2, se2)) = (b.identity1, b.identity2);
+    assert!(
+        m1.abs() > 4.0 * se1 || m2.abs() > 4.0 * se2,
+        "a missing half-vector Jacobian went unnoticed: {m1:.5} ± {se1:.5}, {m2:.5} ± {se2:.5}"
+    );
+}
+
+/// Π dω_h/dω_o over the held vertices of the camera chain, computed here independently of the
+/// mutation: reflection 1 / (4 |ω_o·h|), refraction η_o² |ω_o·h| / (η_i ω_i·h + η_o ω_o·h)² (Walter
+/// et al. 2007, eq. 14 and 16).
+fn hvlens_jacobian_product(scene: &Scene, x: &[hslt::path::Vertex]) -> f64 {
+    let hv = HalfVectorLensPerturbation { threshold: HELD_BELOW };
+    let Some(c) = hv.applicable(scene, x, false) else { return 1.0 };
+    let mut product = 1.0;
+    for j in 1..c {
+        if !hvlens::is_held(&x[j], HELD_BELOW) {
+            continue;
+        }
+        let (wi, wo) = (x[j].direction_to(&x[j - 1]).as_dvec3(), x[j].direction_to(&x[j + 1]).as_dvec3());
+        let ng = x[j].ng.as_dvec3();
+        let reflect = ng.dot(wi) * ng.dot(wo) > 0.0;
+        let eta = x[j].bsdf(scene).map_or(1.0, |b| b.eta() as f64);
+        let (eta_i, eta_o) = match (reflect, ng.dot(wi) > 0.0) {
+            (true, _) => (1.0, 1.0),
+            (false, true) => (1.0, eta),
+            (false, false) => (eta, 1.0),
+        };
+        let h = (wi * eta_i + wo * eta_o).normalize();
+        product *= eta_o * eta_o * wo.dot(h).abs() / (eta_i * wi.dot(h) + eta_o * wo.dot(h)).powi(2);
+    }
+    product
+}
+
+#[test]
+fn half_vector_lens_retrace_from_the_proposal_lands_back_on_the_path() {
+    let hv = HalfVectorLensPerturbation { threshold: HELD_BELOW };
+    let (traced, seeded, _) =
+        retrace_round_trips(MATERIALS, MutationKind::HalfVectorLens, 1000, |ctx, y, x| {
+            hv.perturb_to(ctx, y, x.film)
+        });
+    assert!(traced.f_errors.len() >= 1000, "only {} round trips", traced.f_errors.len());
+    assert!(traced.worst_position < 1e-5 && traced.worst() < 1e-3, "{}", traced.summary());
+    assert!(seeded.worst_position < 1e-2 && seeded.worst() < 0.2, "{}", seeded.summary());
+}
+
+#[test]
+fn half_vector_lens_holds_glossy_vertices_below_its_threshold() {
+    // Camera, gold or glass sphere, …: held at α = 0.15 / 0.1 under HELD_BELOW, so the chain runs past
+    // x_1; with the default threshold (0.1) neither sphere is held and c = 1 as in Veach's lens.
+    let held = |_: &Scene, x: &PathState| hvlens::is_held(&x.vertices[1], HELD_BELOW);
+    let (s, b, x) = find_path(MATERIALS, |s, x| x.len() >= 4 && held(s, x) && !x.vertices[2].delta);
+    let hv = HalfVectorLensPerturbation { threshold: HELD_BELOW };
+    let c = hv.applicable(&s, &x.vertices, b.hide_emitters);
+    assert!(c.is_some_and(|c| c >= 2), "c = {c:?}");
+    let default = HalfVectorLensPerturbation { threshold: MutationSettings::default().specular_threshold };
+    assert_eq!(
+        default.applicable(&s, &x.vertices, b.hide_emitters),
+        LensPerturbation::applicable(&s, &x.vertices, b.hide_emitters)
+    );
+    let moved = propose_with(MutationKind::HalfVectorLens, &s, &b, &x, 100);
+    assert!(moved.iter().any(|r| r.is_ok()), "never moved a held chain: {moved:?}");
+}
+
+#[test]
+fn half_vector_lens_only_chains_reproduce_bdpt_on_the_materials_scene() {
+    one_mutation_vs_bdpt(MATERIALS, MutationKind::HalfVectorLens, 16, 32_768, 4, 256);
+}
+
+#[test]
 fn caustic_perturbation_satisfies_detailed_balance() {
     for rel in [CAUSTIC, CORNELL, MATERIALS] {
         let b = balance(rel, MutationKind::Caustic, 60_000, 4);
@@ -672,7 +774,9 @@ fn degenerate_input_is_rejected_and_counted_never_nan() {
     // Long chains of every mutation on the caustic scene: every failure is a counted reason, and no
     // proposal is ever invalid (NaN or infinite f or ratio), so nothing but finite weights is recorded.
     use hslt::metropolis::{Chain, WeightedMutation};
-    for kind in [MutationKind::Lens, MutationKind::Caustic, MutationKind::MultiChain] {
+    for kind in
+        [MutationKind::Lens, MutationKind::Caustic, MutationKind::MultiChain, MutationKind::HalfVectorLens]
+    {
         let seeds = seeds(&s, &b, 3, 16_384);
         let mut totals = MutationStats::default();
         for c in 0..16 {
@@ -736,6 +840,7 @@ fn one_mutation_vs_bdpt(
     let started = std::time::Instant::now();
     let s = scene(rel);
     let mut settings = MltSettings::for_technique(vec![(kind, 1.0)]);
+    settings.mutation = settings_for(kind);
     // Many short chains: each stays within its starting path's shape, so the run-to-run spread is
     // mostly which seed paths started chains; more chains average more of them.
     settings.chains = 1024;

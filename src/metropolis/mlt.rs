@@ -6,6 +6,7 @@
 use super::chain::{Chain, MutationStats, TargetFunction, WeightedMutation};
 use super::direct;
 use super::driver::{self, ChainRunner, RunningChain};
+use super::mutations::largestep::LengthPmf;
 use super::mutations::{self, MutationKind, MutationSettings};
 use super::path_state::{PathContext, PathState};
 use super::pssmlt::{acceptance_extra, sample_cdf, PssContext, Pssmlt};
@@ -92,13 +93,16 @@ pub struct PathSeeds {
     cdf: Vec<f64>,
     pub samples: usize,
     pub b: f64,
+    /// Σ luminance of the weighted strategies by edge count (index k = vertices − 1): where along the
+    /// lengths the light lies, which the large step proposes from (`largestep::LengthPmf`).
+    pub by_edges: Vec<f64>,
     pub rays: u64,
     pub invalid: u64,
 }
 
 impl PathSeeds {
     pub fn run(scene: &Scene, bdpt: &Bdpt, seed: u64, n: usize, cancel: &AtomicBool) -> PathSeeds {
-        type Chunk = (Vec<(Candidate, f64)>, u64, u64, f64);
+        type Chunk = (Vec<(Candidate, f64, usize)>, u64, u64, f64);
         let chunks: Vec<Chunk> = (0..n.div_ceil(SEED_CHUNK))
             .into_par_iter()
             .map(|chunk| {
@@ -116,21 +120,35 @@ impl PathSeeds {
                             out.2 += 1;
                         } else if y > 0.0 {
                             out.3 += y;
-                            out.0.push((Candidate { sample: i, contribution: j }, y));
+                            // `Contribution::path` adds the environment vertex an s = 0 path escaped to.
+                            let env = usize::from(c.s == 0 && c.endpoint.is_some());
+                            let edges = (c.s + c.t + env).saturating_sub(1);
+                            out.0.push((Candidate { sample: i, contribution: j }, y, edges));
                         }
                     }
                 }
                 out
             })
             .collect();
-        let mut seeds =
-            PathSeeds { candidates: Vec::new(), cdf: Vec::new(), samples: n, b: 0.0, rays: 0, invalid: 0 };
+        let mut seeds = PathSeeds {
+            candidates: Vec::new(),
+            cdf: Vec::new(),
+            samples: n,
+            b: 0.0,
+            by_edges: Vec::new(),
+            rays: 0,
+            invalid: 0,
+        };
         let mut sum = 0.0;
         for (candidates, rays, invalid, _) in chunks {
             seeds.rays += rays;
             seeds.invalid += invalid;
-            for (c, y) in candidates {
+            for (c, y, edges) in candidates {
                 sum += y;
+                if seeds.by_edges.len() <= edges {
+                    seeds.by_edges.resize(edges + 1, 0.0);
+                }
+                seeds.by_edges[edges] += y;
                 seeds.candidates.push(c);
                 seeds.cdf.push(sum);
             }
@@ -162,13 +180,17 @@ impl PathMlt {
         PathMlt { name, bdpt: direct::chain_bdpt(bdpt, settings.direct), settings }
     }
 
-    fn build_mutations(&self, scene: &Scene) -> Vec<WeightedMutation<PathState, PathContext<'_>>> {
+    fn build_mutations(
+        &self,
+        scene: &Scene,
+        settings: &MutationSettings,
+    ) -> Vec<WeightedMutation<PathState, PathContext<'_>>> {
         self.settings
             .mutations
             .iter()
             .filter(|(_, w)| *w > 0.0)
             .filter_map(|&(kind, weight)| {
-                let mutation = mutations::make(kind, &self.settings.mutation, scene)?;
+                let mutation = mutations::make(kind, settings, scene)?;
                 Some(WeightedMutation { mutation, weight })
             })
             .collect()
@@ -181,6 +203,7 @@ impl PathMlt {
         &'a self,
         scene: &'a Scene,
         seeds: &PathSeeds,
+        settings: &MutationSettings,
         seed: u64,
         chain_index: usize,
     ) -> (Option<ChainRunner<PathState, PathContext<'a>>>, usize) {
@@ -189,7 +212,7 @@ impl PathMlt {
         for attempt in 0..START_ATTEMPTS {
             let Some(start) = seeds.draw(scene, &self.bdpt, seed, rng.next_f64()) else { continue };
             if target.of(&start) > 0.0 {
-                let mutations = self.build_mutations(scene);
+                let mutations = self.build_mutations(scene, settings);
                 if mutations.is_empty() {
                     return (None, attempt);
                 }
@@ -251,8 +274,12 @@ impl Integrator for PathMlt {
         };
         let n_chains = self.settings.chains.max(1).min(total_mutations.min(1 << 32) as usize);
         let chains_start = Instant::now();
-        let started: Vec<_> =
-            (0..n_chains).into_par_iter().map(|c| self.start_chain(scene, &seeds, seed, c)).collect();
+        let mut mutation_settings = self.settings.mutation.clone();
+        mutation_settings.large_step_lengths = LengthPmf::from_histogram(&seeds.by_edges, &self.bdpt);
+        let started: Vec<_> = (0..n_chains)
+            .into_par_iter()
+            .map(|c| self.start_chain(scene, &seeds, &mutation_settings, seed, c))
+            .collect();
         let redraws: usize = started.iter().map(|(_, r)| r).sum();
         metadata.push(("hslt.mlt.seed_redraws".into(), redraws.to_string()));
         let mut chains: Vec<Box<dyn RunningChain + '_>> = started

@@ -19,17 +19,87 @@ use crate::scene::Scene;
 /// and one-bounce lengths most of the mass and halves it per further bounce.
 const LENGTH_CENTRE: usize = 2;
 
-pub struct LargeStep;
+/// Share of the seeding pass's length histogram in `LengthPmf`; the rest is the two-tailed pmf, which
+/// keeps every length in reach.
+pub const SEEDED_LENGTH_SHARE: f64 = 0.5;
 
-/// p(y): the density of the whole path `path` under the large step, whatever the current path was.
-pub fn density(scene: &Scene, bdpt: &Bdpt, path: &[Vertex]) -> f64 {
-    if path.len() < 2 {
-        return 0.0;
+/// The distribution of the new path's edge count: the two-tailed pmf alone, or mixed with the share of
+/// the image each length carried in the seeding pass (`PathSeeds::by_edges`). An independence sampler
+/// leaves a state at a rate set by f(x)/p(x), so a length the fixed pmf gives 2^−38 (the diamond's
+/// 40-edge paths) would hold any chain that reaches it; the histogram gives it the share of light it
+/// carries. The histogram is fixed before the chains start, so the kernel stays a fixed density.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct LengthPmf {
+    /// Normalised seeded share by edge count (empty: the two-tailed pmf alone).
+    seeded: Vec<f64>,
+}
+
+impl LengthPmf {
+    /// From luminance sums by edge count; lengths outside [k_min, k_max] are dropped.
+    pub fn from_histogram(by_edges: &[f64], bdpt: &Bdpt) -> LengthPmf {
+        let (k_min, k_max) = edge_range(bdpt);
+        let mut seeded: Vec<f64> = by_edges
+            .iter()
+            .enumerate()
+            .map(|(k, &w)| if k >= k_min && k <= k_max && w.is_finite() && w > 0.0 { w } else { 0.0 })
+            .collect();
+        let total: f64 = seeded.iter().sum();
+        if !(total > 0.0 && total.is_finite()) {
+            return LengthPmf::default();
+        }
+        seeded.iter_mut().for_each(|w| *w /= total);
+        LengthPmf { seeded }
     }
-    let (k_min, k_max) = edge_range(bdpt);
-    let p_length = two_tailed_pmf(LENGTH_CENTRE, k_min, k_max, path.len() - 1);
-    // Keeping x_0 alone, all edges after it are new, counting the light supernode's edge.
-    p_length * regrowth_density(scene, path, 0, path.len())
+
+    fn seeded_share(&self) -> f64 {
+        if self.seeded.is_empty() {
+            0.0
+        } else {
+            SEEDED_LENGTH_SHARE
+        }
+    }
+
+    /// P(k edges).
+    pub fn pmf(&self, bdpt: &Bdpt, k: usize) -> f64 {
+        let (k_min, k_max) = edge_range(bdpt);
+        let share = self.seeded_share();
+        let seeded = self.seeded.get(k).copied().unwrap_or(0.0);
+        share * seeded + (1.0 - share) * two_tailed_pmf(LENGTH_CENTRE, k_min, k_max, k)
+    }
+
+    fn sample(&self, bdpt: &Bdpt, rng: &mut Sampler) -> Option<usize> {
+        let (k_min, k_max) = edge_range(bdpt);
+        let u = rng.next_f64();
+        if rng.next_f64() < self.seeded_share() {
+            let mut rest = u;
+            for (k, &p) in self.seeded.iter().enumerate() {
+                rest -= p;
+                if rest < 0.0 && p > 0.0 {
+                    return Some(k);
+                }
+            }
+            return self.seeded.iter().rposition(|&p| p > 0.0);
+        }
+        sample_two_tailed(LENGTH_CENTRE, k_min, k_max, u)
+    }
+}
+
+/// The large step with its length distribution.
+#[derive(Clone, Debug, Default)]
+pub struct LargeStep {
+    pub lengths: LengthPmf,
+}
+
+impl LargeStep {
+    /// p(y): the density of the whole path `path` under the large step, whatever the current path was.
+    pub fn density(&self, scene: &Scene, bdpt: &Bdpt, path: &[Vertex]) -> f64 {
+        if path.len() < 2 {
+            return 0.0;
+        }
+        let p_length = self.lengths.pmf(bdpt, path.len() - 1);
+        // Keeping x_0 alone, all edges after it are new, counting the light supernode's edge.
+        p_length * regrowth_density(scene, path, 0, path.len())
+    }
 }
 
 impl<'a> Mutation<PathState, PathContext<'a>> for LargeStep {
@@ -48,16 +118,14 @@ impl<'a> Mutation<PathState, PathContext<'a>> for LargeStep {
         if x.len() < 2 {
             return Err(Failure::NotApplicable);
         }
-        let (k_min, k_max) = edge_range(ctx.bdpt);
-        let k_new =
-            sample_two_tailed(LENGTH_CENTRE, k_min, k_max, rng.next_f64()).ok_or(Failure::NotApplicable)?;
+        let k_new = self.lengths.sample(ctx.bdpt, rng).ok_or(Failure::NotApplicable)?;
         let y = regrow(ctx, x, 0, x.len(), k_new + 1, rng)?;
         if y.len() > ctx.max_vertices() || y.len() != k_new + 1 {
             return Err(Failure::Failed("too_long"));
         }
         let state = PathState::new(ctx.scene, y).ok_or(Failure::Failed("zero_contribution"))?;
-        let forward = density(ctx.scene, ctx.bdpt, &state.vertices);
-        let reverse = density(ctx.scene, ctx.bdpt, x);
+        let forward = self.density(ctx.scene, ctx.bdpt, &state.vertices);
+        let reverse = self.density(ctx.scene, ctx.bdpt, x);
         let t_ratio = reverse / forward;
         if !(forward > 0.0 && forward.is_finite() && reverse.is_finite() && t_ratio.is_finite()) {
             return Err(Failure::Failed("degenerate_density"));

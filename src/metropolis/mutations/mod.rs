@@ -6,6 +6,7 @@
 pub mod bidir;
 pub mod caustic;
 pub mod halfvector;
+pub mod hvlens;
 pub mod largestep;
 pub mod lens;
 mod manifold;
@@ -35,10 +36,12 @@ pub enum MutationKind {
     HalfVector,
     /// Large step: an independent new path from the bidirectional sampler.
     LargeStep,
+    /// Lens perturbation continued through near-specular glossy vertices at fixed half vectors.
+    HalfVectorLens,
 }
 
 impl MutationKind {
-    pub const ALL: [MutationKind; 7] = [
+    pub const ALL: [MutationKind; 8] = [
         MutationKind::Bidirectional,
         MutationKind::Lens,
         MutationKind::Caustic,
@@ -46,6 +49,7 @@ impl MutationKind {
         MutationKind::Manifold,
         MutationKind::HalfVector,
         MutationKind::LargeStep,
+        MutationKind::HalfVectorLens,
     ];
 
     pub fn name(self) -> &'static str {
@@ -57,6 +61,7 @@ impl MutationKind {
             MutationKind::Manifold => "manifold",
             MutationKind::HalfVector => "hslt",
             MutationKind::LargeStep => "largestep",
+            MutationKind::HalfVectorLens => "hvlens",
         }
     }
 
@@ -113,6 +118,8 @@ pub struct MutationSettings {
     pub specular_threshold: f32,
     /// HSLT's half-vector mutation: step scale, stratification, image step and walk constants.
     pub halfvector: halfvector::HalfVectorParams,
+    /// The large step's length distribution (set from the seeding pass by `PathMlt`).
+    pub large_step_lengths: largestep::LengthPmf,
 }
 
 impl Default for MutationSettings {
@@ -121,6 +128,7 @@ impl Default for MutationSettings {
             lambda: 50.0,
             specular_threshold: 0.1,
             halfvector: halfvector::HalfVectorParams::default(),
+            large_step_lengths: largestep::LengthPmf::default(),
         }
     }
 }
@@ -138,7 +146,12 @@ pub fn make<'a>(
         MutationKind::Caustic => Some(Box::new(caustic::CausticPerturbation)),
         MutationKind::MultiChain => Some(Box::new(multichain::MultiChainPerturbation)),
         MutationKind::HalfVector => Some(Box::new(halfvector::HalfVectorMutation::new(settings.halfvector))),
-        MutationKind::LargeStep => Some(Box::new(largestep::LargeStep)),
+        MutationKind::LargeStep => {
+            Some(Box::new(largestep::LargeStep { lengths: settings.large_step_lengths.clone() }))
+        }
+        MutationKind::HalfVectorLens => {
+            Some(Box::new(hvlens::HalfVectorLensPerturbation { threshold: settings.specular_threshold }))
+        }
         MutationKind::Manifold => {
             Some(Box::new(ManifoldPerturbation::new(settings.lambda, settings.specular_threshold)))
         }
