@@ -364,7 +364,8 @@ fn compare_with_bdpt(
     );
     assert!(d < 2.5, "{rel}: bidirectional MLT differs from BDPT: mean z² {d:.3}");
     assert!(d_distorted > 2.5, "{rel}: the comparison cannot see a 10% distortion ({d_distorted:.3})");
-    // The total is b against BDPT's: both are BDPT estimates, b from the seed pass.
+    // The total is b against BDPT's: both are BDPT estimates, b from the seed pass (and the large
+    // steps, when the mixture has them).
     let flux_tol = 5.0 * (fm_se * fm_se + fb_se * fb_se).sqrt();
     assert!((fm - fb).abs() <= flux_tol, "{rel}: flux {fm:.4} vs BDPT {fb:.4} (± {flux_tol:.4})");
     assert!(acc > 0.01 && acc < 1.0, "{rel}: acceptance {acc}");
@@ -579,5 +580,7 @@ fn large_step_proposals_are_unbiased_samples_of_the_path_integral() {
 #[test]
 fn large_step_chains_reproduce_bdpt_on_the_caustic_scene() {
     // An independence sampler reaches every path BDPT does, so it alone must reproduce BDPT's image.
-    compare_with_bdpt(&[MutationKind::LargeStep], "scenes/caustic/scene.xml", 256, 1 << 16, 12, 128, 256);
+    // With it the direct pass runs and its f/p refines b; 512 mutations per pixel keep the power check
+    // (a 10% distortion of half the blocks) clear of its threshold (2.5: 128 gave 2.36, 256 gave 2.72).
+    compare_with_bdpt(&[MutationKind::LargeStep], "scenes/caustic/scene.xml", 256, 1 << 16, 12, 512, 256);
 }

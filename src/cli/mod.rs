@@ -172,7 +172,8 @@ pub struct RenderArgs {
     #[arg(long, value_name = "N")]
     pub chains: Option<usize>,
     /// Path-space MLT (mlt, memlt, hslt, hslt+mlt): the mutation mixture with selection weights, e.g.
-    /// bidir:1,lens:1,caustic:1,multichain:1 (known: bidir, lens, caustic, multichain, manifold, hslt, largestep).
+    /// bidir:1,lens:1,caustic:1,multichain:1 (known: bidir, lens, caustic, multichain, manifold, hslt,
+    /// largestep, hvlens).
     #[arg(long, value_name = "LIST")]
     pub mutations: Option<String>,
     /// MEMLT: manifold perturbation size λ (larger: smaller steps).

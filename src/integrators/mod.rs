@@ -188,18 +188,28 @@ impl IntegratorKind {
     /// The mutation mixture of a path-space technique (empty for the others): Veach's set for MLT,
     /// plus the manifold perturbation for MEMLT (Mitsuba's MEMLT mixture), the half-vector mutation
     /// with the bidirectional one for HSLT (the paper's "HSLT"), and with Veach's set for HSLT+MLT.
+    /// Every mixture has the large step, whose f(y)/p(y) refines b (and with it the direct pass runs,
+    /// `DirectPass::for_path_space`). The HSLT mixtures add the half-vector lens perturbation and
+    /// give the half-vector mutation a tenth of the proposals: one costs about as much time as 60
+    /// lens perturbations (jewelry's rings, 2 threads), so at weight 1 it took 90% of the time and
+    /// the rings' relative MSE was 2.2× that at 0.1 (docs/benchmarks.md, session 8).
     pub fn default_mutations(self) -> Vec<(MutationKind, f64)> {
         use MutationKind::*;
         let veach = [(Bidirectional, 1.0), (Lens, 1.0), (Caustic, 1.0), (MultiChain, 1.0)];
+        let large = (LargeStep, 1.0);
+        let half_vector = [(HalfVector, HALF_VECTOR_WEIGHT), (HalfVectorLens, 1.0)];
         match self {
             IntegratorKind::Path | IntegratorKind::Bdpt | IntegratorKind::Pssmlt => Vec::new(),
-            IntegratorKind::Mlt => veach.to_vec(),
-            IntegratorKind::Memlt => [&veach[..], &[(Manifold, 1.0)]].concat(),
-            IntegratorKind::Hslt => vec![(Bidirectional, 1.0), (HalfVector, 1.0)],
-            IntegratorKind::HsltMlt => [&veach[..], &[(HalfVector, 1.0)]].concat(),
+            IntegratorKind::Mlt => [&veach[..], &[large]].concat(),
+            IntegratorKind::Memlt => [&veach[..], &[(Manifold, 1.0), large]].concat(),
+            IntegratorKind::Hslt => [&[(Bidirectional, 1.0)], &half_vector[..], &[large]].concat(),
+            IntegratorKind::HsltMlt => [&veach[..], &half_vector[..], &[large]].concat(),
         }
     }
 }
+
+/// The half-vector mutation's weight in the default HSLT mixtures (the others' weights are 1).
+pub const HALF_VECTOR_WEIGHT: f64 = 0.1;
 
 /// Everything that configures an integrator, from the scene's `<integrator>` and the command line.
 #[derive(Clone, Debug)]
@@ -264,7 +274,7 @@ pub fn make_with(kind: IntegratorKind, settings: &IntegratorSettings) -> Box<dyn
                 settings.mutations.clone().unwrap_or_else(|| kind.default_mutations()),
             );
             mlt.seed_paths = settings.pssmlt.seed_paths;
-            mlt.direct = settings.pssmlt.direct.for_path_space();
+            mlt.direct = settings.pssmlt.direct;
             mlt.chains = settings.path_chains.unwrap_or(crate::metropolis::mlt::DEFAULT_PATH_CHAINS);
             mlt.target = settings.pssmlt.target;
             mlt.mutation = settings.mutation.clone();

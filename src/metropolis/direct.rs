@@ -1,8 +1,8 @@
 //! Direct illumination rendered apart from the Metropolis chains, as Mitsuba's MLT family does by
 //! default (`directSamples`, which the HSLT paper's comparisons inherit): paths of one or two segments
 //! (emitters seen directly, one-bounce lighting) are estimated by BDPT restricted to them, and the
-//! chains spend all their mutations on indirect light. Here PSSMLT does so by default and the
-//! path-space methods when asked (`DirectPass::for_path_space` says why).
+//! chains spend all their mutations on indirect light. PSSMLT does so by default, and so do the
+//! path-space methods whose mixture has a large step (`DirectPass::for_path_space` says why).
 
 use crate::integrators::Bdpt;
 use crate::render::{self, Film, RenderOptions, RenderStats};
@@ -31,18 +31,21 @@ pub enum DirectPass {
     /// This fraction of the render's time limit (`Samples(DEFAULT_DIRECT_SAMPLES)` without one).
     Share(f64),
     /// Each integrator's default: for PSSMLT `Share(DEFAULT_DIRECT_SHARE)` with a time limit and
-    /// `Samples(DEFAULT_DIRECT_SAMPLES)` without; for the path-space methods `Off` (`for_path_space`).
+    /// `Samples(DEFAULT_DIRECT_SAMPLES)` without; the same for the path-space methods with a large
+    /// step in their mixture, `Off` for the others (`for_path_space`).
     Auto,
 }
 
 impl DirectPass {
-    /// The pass a path-space method runs. `Auto` is off there: their b comes from the seeding pass
-    /// alone (PSSMLT refines it with every large step), and indirect light alone is far more
-    /// heavy-tailed than the whole image. On the caustic scene, with 65 536 seed paths, lens-only
-    /// chains came out 3.6% dark (0.0739 ± 0.0004 against BDPT's 0.0767 ± 0.0011 over 16 runs),
-    /// where without the pass they agree; on jewelry the pass did not lower path-space MLT's error.
-    pub fn for_path_space(self) -> DirectPass {
-        if self == DirectPass::Auto {
+    /// The pass a path-space method runs. `Auto` runs it when the mixture has a large step
+    /// (`refines_b`) and is off otherwise. With the pass the chains' b covers indirect light alone,
+    /// which is far more heavy-tailed than the whole image, and a seeding pass alone estimates it
+    /// poorly: on the caustic scene, with 65 536 seed paths, lens-only chains came out 3.6% dark
+    /// (0.0739 ± 0.0004 against BDPT's 0.0767 ± 0.0011 over 16 runs). Every large step's f(y)/p(y)
+    /// refines b as PSSMLT's large steps do, and with both the path-space methods' relative MSE on the
+    /// rings of the jewelry scene fell 2.5–10× (docs/benchmarks.md, session 8).
+    pub fn for_path_space(self, refines_b: bool) -> DirectPass {
+        if self == DirectPass::Auto && !refines_b {
             DirectPass::Off
         } else {
             self

@@ -6,7 +6,7 @@
 use super::chain::{Chain, MutationStats, TargetFunction, WeightedMutation};
 use super::direct;
 use super::driver::{self, ChainRunner, RunningChain};
-use super::mutations::largestep::LengthPmf;
+use super::mutations::largestep::{self, LengthPmf};
 use super::mutations::{self, MutationKind, MutationSettings};
 use super::path_state::{PathContext, PathState};
 use super::pssmlt::{acceptance_extra, sample_cdf, PssContext, Pssmlt};
@@ -176,7 +176,8 @@ impl PathMlt {
     /// With `settings.direct` enabled the chains and the seeding pass run on `bdpt` without its
     /// direct-lighting paths (`direct::chain_bdpt`), which the render estimates separately.
     pub fn new(name: &'static str, bdpt: Bdpt, settings: MltSettings) -> PathMlt {
-        let settings = MltSettings { direct: settings.direct.for_path_space(), ..settings };
+        let refines_b = settings.mutations.iter().any(|&(k, w)| k == MutationKind::LargeStep && w > 0.0);
+        let settings = MltSettings { direct: settings.direct.for_path_space(refines_b), ..settings };
         PathMlt { name, bdpt: direct::chain_bdpt(bdpt, settings.direct), settings }
     }
 
@@ -294,8 +295,28 @@ impl Integrator for PathMlt {
             ));
         }
         let quotas = driver::quotas(total_mutations, chains.len());
-        let outcome =
-            driver::drive(options, cancel, start_time, |_| b, film, &mut chains, &quotas, acceptance_extra);
+        // b from the seeding pass and every large step (each an unbiased estimate, `largestep`).
+        let seed_sum = b * n_seed as f64;
+        let normalization = |stats: &[MutationStats]| {
+            let (large_sum, large_n) = stats
+                .iter()
+                .filter(|s| s.name == MutationKind::LargeStep.name())
+                .map(|s| (s.sums.get(largestep::B_ESTIMATE).copied().unwrap_or(0.0), s.proposed))
+                .fold((0.0, 0), |(a, n), (x, m)| (a + x, n + m));
+            (seed_sum + large_sum) / (n_seed as u64 + large_n) as f64
+        };
+        let outcome = driver::drive(
+            options,
+            cancel,
+            start_time,
+            normalization,
+            film,
+            &mut chains,
+            &quotas,
+            acceptance_extra,
+        );
+        metadata
+            .push(("hslt.mlt.normalization_final".into(), format!("{:.6e}", normalization(&outcome.stats))));
         let mutation_stats: Vec<MutationStats> = outcome.stats;
         stats.rays += outcome.rays;
         stats.interrupted |= outcome.interrupted;

@@ -28,7 +28,8 @@ pub struct BidirectionalMutation;
 /// common: on the jewelry scene paths of more than 24 segments carry a tenth of the light seen in the
 /// diamond.
 pub(super) fn edge_range(bdpt: &Bdpt) -> (usize, usize) {
-    let k_min = if bdpt.hide_emitters { 2 } else { 1 };
+    // Paths below BDPT's minimum length (the direct pass's, when it runs) are not the chains' to make.
+    let k_min = (if bdpt.hide_emitters { 2 } else { 1 }).max(bdpt.min_path_vertices.saturating_sub(1));
     let k_max = bdpt.max_path_vertices().saturating_sub(1);
     (k_min, k_max)
 }

@@ -84,6 +84,9 @@ impl LengthPmf {
     }
 }
 
+/// The `MutationStats::sums` key of Σ luminance f(y) / p(y) over the proposals.
+pub const B_ESTIMATE: &str = "b_estimate";
+
 /// The large step with its length distribution.
 #[derive(Clone, Debug, Default)]
 pub struct LargeStep {
@@ -131,6 +134,9 @@ impl<'a> Mutation<PathState, PathContext<'a>> for LargeStep {
             return Err(Failure::Failed("degenerate_density"));
         }
         stats.add_sum("new_edges", k_new as f64);
+        // luminance f(y) / p(y) is an unbiased estimate of b (failed proposals count 0): the render
+        // refines the seeding pass's b with it, as PSSMLT does with its large steps.
+        stats.add_sum(B_ESTIMATE, state.luminance() / forward);
         Ok(Proposal { state, t_ratio })
     }
 }
