@@ -17,9 +17,9 @@
 //! times |cos θ_{j+1}| / d². The frame's own rotation along the surface enters only the blocks below
 //! the diagonal, which do not change the determinant. T(y→x)/T(x→y) is D(x)/D(y) with D that product.
 
-use super::perturb::{camera_chain_density, connect_visible, ray_from};
+use super::perturb::{camera_chain_density, connect_visible, primary_ray, ray_from};
 use crate::bsdf::TransportMode;
-use crate::geometry::{Ray, Vec2, Vec3};
+use crate::geometry::{Vec2, Vec3};
 use crate::metropolis::chain::{Failure, Mutation, MutationStats, Proposal};
 use crate::metropolis::path_state::{PathContext, PathState};
 use crate::path::{ScatterClass, Vertex, VertexKind};
@@ -135,12 +135,8 @@ impl HalfVectorLensPerturbation {
         film: Vec2,
     ) -> Result<Vec<Vertex>, Failure> {
         let scene = ctx.scene;
-        let (w, h) = (scene.film.width as f32, scene.film.height as f32);
-        if !(film.x >= 0.0 && film.y >= 0.0 && film.x < w && film.y < h) {
-            return Err(Failure::Failed("outside_image"));
-        }
         let ends_on_emitter = c == x.len() - 1;
-        let mut ray: Ray = scene.camera.generate_ray(film);
+        let mut ray = primary_ray(scene, film)?;
         let mut out = Vec::with_capacity(c + 1);
         out.push(x[0]);
         for j in 1..=c {

@@ -162,6 +162,15 @@ pub fn radians_per_pixel(scene: &Scene) -> f64 {
     fov / scene.film.width.max(1) as f64
 }
 
+/// The camera ray through film position `film`, or `outside_image` (NaN included).
+pub fn primary_ray(scene: &Scene, film: Vec2) -> Result<Ray, Failure> {
+    let (w, h) = (scene.film.width as f32, scene.film.height as f32);
+    if !(film.x >= 0.0 && film.y >= 0.0 && film.x < w && film.y < h) {
+        return Err(Failure::Failed("outside_image"));
+    }
+    Ok(scene.camera.generate_ray(film))
+}
+
 /// The camera-side specular chain of the lens and multi-chain perturbations: the primary ray through
 /// `film`, traced through the old `x_1 … x_{c−1}` (all `delta`) to a new `y_c`. Returns
 /// `[x_0, y_1, …, y_c]`.
@@ -171,12 +180,7 @@ pub fn trace_from_camera(
     c: usize,
     film: Vec2,
 ) -> Result<Vec<Vertex>, Failure> {
-    let scene = ctx.scene;
-    let (w, h) = (scene.film.width as f32, scene.film.height as f32);
-    if !(film.x >= 0.0 && film.y >= 0.0 && film.x < w && film.y < h) {
-        return Err(Failure::Failed("outside_image"));
-    }
-    let ray = scene.camera.generate_ray(film);
+    let ray = primary_ray(ctx.scene, film)?;
     let ends_on_emitter = c == old.len() - 1;
     let traced = trace_specular_chain(ctx, &old[..=c], ray, TransportMode::Radiance, ends_on_emitter)?;
     let mut out = Vec::with_capacity(c + 1);
