@@ -17,7 +17,7 @@
 //! times |cos θ_{j+1}| / d². The frame's own rotation along the surface enters only the blocks below
 //! the diagonal, which do not change the determinant. T(y→x)/T(x→y) is D(x)/D(y) with D that product.
 
-use super::perturb::{camera_chain_density, connect_visible, primary_ray, ray_from};
+use super::perturb::{camera_chain_density, join_camera_chain, primary_ray, ray_from};
 use crate::bsdf::TransportMode;
 use crate::geometry::{Vec2, Vec3};
 use crate::metropolis::chain::{Failure, Mutation, MutationStats, Proposal};
@@ -199,24 +199,8 @@ impl HalfVectorLensPerturbation {
             return Err(Failure::NotApplicable);
         }
         let c = self.applicable(ctx.scene, x, ctx.bdpt.hide_emitters).ok_or(Failure::NotApplicable)?;
-        let mut y = self.trace(ctx, x, c, film)?;
-        if c < n - 1 {
-            if !y[c].connectible() {
-                return Err(Failure::Failed("not_connectible"));
-            }
-            if !connect_visible(ctx, &y[c], &x[c + 1]) {
-                return Err(Failure::Failed("occluded"));
-            }
-            y.extend_from_slice(&x[c + 1..]);
-        }
-        let scene = ctx.scene;
-        let density_y = self.chain_density(scene, &y[..=c]);
-        let density_x = self.chain_density(scene, &x[..=c]);
-        if !(density_y > 0.0 && density_y.is_finite() && density_x.is_finite()) {
-            return Err(Failure::Failed("zero_density"));
-        }
-        let state = PathState::new(scene, y).ok_or(Failure::Failed("no_contribution"))?;
-        Ok(Proposal { state, t_ratio: density_x / density_y })
+        let y = self.trace(ctx, x, c, film)?;
+        join_camera_chain(ctx, x, y, c, |scene, chain| self.chain_density(scene, chain))
     }
 }
 

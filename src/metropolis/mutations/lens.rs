@@ -12,7 +12,7 @@
 //! D(p) = pdf_dir(p_0→p_1) · Π_{i=1..c} |cos θ_i| / d²(p_{i−1}, p_i) (Dirac convention).
 
 use super::perturb::{
-    camera_chain_density, connect_visible, first_non_delta, sample_film_offset, trace_from_camera,
+    camera_chain_density, first_non_delta, join_camera_chain, sample_film_offset, trace_from_camera,
 };
 use crate::geometry::Vec2;
 use crate::metropolis::chain::{Failure, Mutation, MutationStats, Proposal};
@@ -55,24 +55,8 @@ impl LensPerturbation {
             return Err(Failure::NotApplicable);
         }
         let c = Self::applicable(ctx.scene, x, ctx.bdpt.hide_emitters).ok_or(Failure::NotApplicable)?;
-        let mut y = trace_from_camera(ctx, x, c, film)?;
-        if c < n - 1 {
-            if !y[c].connectible() {
-                return Err(Failure::Failed("not_connectible"));
-            }
-            if !connect_visible(ctx, &y[c], &x[c + 1]) {
-                return Err(Failure::Failed("occluded"));
-            }
-            y.extend_from_slice(&x[c + 1..]);
-        }
-        let scene = ctx.scene;
-        let density_y = camera_chain_density(scene, &y[..=c]);
-        let density_x = camera_chain_density(scene, &x[..=c]);
-        if !(density_y > 0.0 && density_y.is_finite()) {
-            return Err(Failure::Failed("zero_density"));
-        }
-        let state = PathState::new(scene, y).ok_or(Failure::Failed("no_contribution"))?;
-        Ok(Proposal { state, t_ratio: density_x / density_y })
+        let y = trace_from_camera(ctx, x, c, film)?;
+        join_camera_chain(ctx, x, y, c, camera_chain_density)
     }
 }
 

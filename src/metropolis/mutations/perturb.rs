@@ -8,8 +8,8 @@
 
 use crate::bsdf::TransportMode;
 use crate::geometry::{ray_epsilon, Frame, Ray, Vec2, Vec3};
-use crate::metropolis::chain::Failure;
-use crate::metropolis::path_state::PathContext;
+use crate::metropolis::chain::{Failure, Proposal};
+use crate::metropolis::path_state::{PathContext, PathState};
 use crate::path::{visible, Vertex, VertexKind};
 use crate::sampling::Sampler;
 use crate::scene::Scene;
@@ -194,4 +194,33 @@ pub fn trace_from_camera(
 pub fn camera_chain_density(scene: &Scene, chain: &[Vertex]) -> f64 {
     let dir = chain[0].direction_to(&chain[1]);
     scene.camera.pdf_dir(dir) as f64 * conversion_product(scene, chain)
+}
+
+/// The end of a lens-type move: the chain `y` = [x_0, y_1, …, y_c] retraced from the camera joins the
+/// unchanged x_{c+1} … x_k of `x` (nothing to join when c = k), and T(y→x)/T(x→y) = D(x)/D(y) with
+/// `density` the move's D of a camera chain p_0 … p_c.
+pub fn join_camera_chain(
+    ctx: &mut PathContext,
+    x: &[Vertex],
+    mut y: Vec<Vertex>,
+    c: usize,
+    density: impl Fn(&Scene, &[Vertex]) -> f64,
+) -> Result<Proposal<PathState>, Failure> {
+    if c < x.len() - 1 {
+        if !y[c].connectible() {
+            return Err(Failure::Failed("not_connectible"));
+        }
+        if !connect_visible(ctx, &y[c], &x[c + 1]) {
+            return Err(Failure::Failed("occluded"));
+        }
+        y.extend_from_slice(&x[c + 1..]);
+    }
+    let scene = ctx.scene;
+    let density_y = density(scene, &y[..=c]);
+    let density_x = density(scene, &x[..=c]);
+    if !(density_y > 0.0 && density_y.is_finite() && density_x.is_finite()) {
+        return Err(Failure::Failed("zero_density"));
+    }
+    let state = PathState::new(scene, y).ok_or(Failure::Failed("no_contribution"))?;
+    Ok(Proposal { state, t_ratio: density_x / density_y })
 }
