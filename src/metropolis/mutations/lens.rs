@@ -10,14 +10,15 @@
 //!
 //! With a pinhole, d film / dω ∝ `camera.pdf_dir`, so T(y→x)/T(x→y) = D(x)/D(y) with
 //! D(p) = pdf_dir(p_0→p_1) · Π_{i=1..c} |cos θ_i| / d²(p_{i−1}, p_i) (Dirac convention).
+//! It is run as the half-vector lens perturbation (`hvlens`) with no glossy vertex held, which is
+//! this move exactly, so the two cannot drift apart.
 
-use super::perturb::{
-    camera_chain_density, first_non_delta, join_camera_chain, sample_film_offset, trace_from_camera,
-};
+use super::hvlens::HalfVectorLensPerturbation;
+use super::perturb::sample_film_offset;
 use crate::geometry::Vec2;
 use crate::metropolis::chain::{Failure, Mutation, MutationStats, Proposal};
 use crate::metropolis::path_state::{PathContext, PathState};
-use crate::path::{Vertex, VertexKind};
+use crate::path::Vertex;
 use crate::sampling::Sampler;
 use crate::scene::Scene;
 
@@ -26,19 +27,14 @@ use crate::scene::Scene;
 pub struct LensPerturbation;
 
 impl LensPerturbation {
+    /// The half-vector lens perturbation holding no glossy vertex is exactly this move: the same
+    /// chain end c, the same trace through Dirac lobes, the same density (`hvlens`).
+    const AS_HALF_VECTOR_LENS: HalfVectorLensPerturbation = HalfVectorLensPerturbation { threshold: 0.0 };
+
     /// c, the first non-specular vertex after the camera, if the perturbation applies to `x`: either
     /// the chain ends on a hittable emitter (c = k) or x_c and x_{c+1} can be joined by an edge.
     pub fn applicable(scene: &Scene, x: &[Vertex], hide_emitters: bool) -> Option<usize> {
-        let n = x.len();
-        if n < 2 || (hide_emitters && n == 2) {
-            return None;
-        }
-        let c = first_non_delta(x, 1)?;
-        if c == n - 1 {
-            let end = &x[c];
-            return (end.light.is_some() && !end.is_delta_light(scene)).then_some(c);
-        }
-        (x[c].kind == VertexKind::Surface && x[c].connectible() && x[c + 1].connectible()).then_some(c)
+        Self::AS_HALF_VECTOR_LENS.applicable(scene, x, hide_emitters)
     }
 
     /// The deterministic part of the move: the path of `current` re-seen through film position
@@ -49,14 +45,7 @@ impl LensPerturbation {
         current: &PathState,
         film: Vec2,
     ) -> Result<Proposal<PathState>, Failure> {
-        let x = &current.vertices;
-        let n = x.len();
-        if n > ctx.max_vertices() {
-            return Err(Failure::NotApplicable);
-        }
-        let c = Self::applicable(ctx.scene, x, ctx.bdpt.hide_emitters).ok_or(Failure::NotApplicable)?;
-        let y = trace_from_camera(ctx, x, c, film)?;
-        join_camera_chain(ctx, x, y, c, camera_chain_density)
+        Self::AS_HALF_VECTOR_LENS.perturb_to(ctx, current, film)
     }
 }
 
