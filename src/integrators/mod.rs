@@ -190,7 +190,7 @@ impl IntegratorKind {
     /// with the bidirectional one for HSLT (the paper's "HSLT"), and with Veach's set for HSLT+MLT.
     /// Every mixture has the large step, whose f(y)/p(y) refines b (and with it the direct pass runs,
     /// `DirectPass::for_path_space`). The HSLT mixtures add the half-vector lens perturbation and
-    /// give the half-vector mutation a tenth of the proposals: one costs about as much time as 60
+    /// give the half-vector mutation a tenth of the proposals: one costs about as much time as 50
     /// lens perturbations (jewelry's rings, 2 threads), so at weight 1 it took 90% of the time and
     /// the rings' relative MSE was 2.2× that at 0.1 (docs/benchmarks.md, session 8).
     pub fn default_mutations(self) -> Vec<(MutationKind, f64)> {
