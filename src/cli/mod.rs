@@ -2,6 +2,7 @@
 //! arguments into load and render options and writes the outputs with their metadata.
 
 pub mod assets;
+pub mod error;
 pub mod plot_halfvector;
 pub mod report;
 
@@ -46,6 +47,10 @@ pub enum Command {
     Compare(report::CompareArgs),
     /// Render a long, checkpointed reference image (EXR) that --resume continues.
     Reference(report::ReferenceArgs),
+    /// Error of finished images against a reference (one image, or the mean of two independent
+    /// renders): relative MSE per pixel and on block means, RMSE, MAE, with each image's integrator,
+    /// seed and samples from its metadata, as a Markdown table.
+    Error(error::ErrorArgs),
     /// The HSLT supplement's half-vector plots (Fig. 4) for a path through one pixel.
     ///
     /// Sweeps vertex I's projected half vector h⊥ over the unit disk (all other half vectors and both
@@ -190,14 +195,14 @@ pub struct RenderArgs {
     /// PSSMLT: probability of a large step (an independent new sample) per mutation.
     #[arg(long, value_name = "P", default_value_t = 0.3)]
     pub p_large: f64,
-    /// Metropolis (pssmlt, mlt, memlt, hslt, hslt+mlt): BDPT samples per pixel of a separate pass for
-    /// direct illumination (paths of one or two segments), so the chains render indirect light only, as
-    /// Mitsuba's MLT family does; 0 leaves direct illumination to the chains [default: PSSMLT 16, or
-    /// with --time the share --direct-share of it; path-space methods 0]
+    /// Metropolis (pssmlt, mlt, memlt, hslt, hslt+mlt): path-tracer samples per pixel of a separate
+    /// pass for direct illumination (paths of one or two segments), so the chains render indirect light
+    /// only, as Mitsuba's MLT family does; 0 leaves direct illumination to the chains [default: 16, or
+    /// with --time the share --direct-share of it; no pass for path-space mixtures without a large step]
     #[arg(long, value_name = "N", conflicts_with = "direct_share")]
     pub direct_samples: Option<u32>,
-    /// Metropolis: the fraction of --time the direct-illumination pass runs for [default: PSSMLT 0.1,
-    /// path-space methods no pass]
+    /// Metropolis: the fraction of --time the direct-illumination pass runs for [default: 0.1; no pass
+    /// for path-space mixtures without a large step]
     #[arg(long, value_name = "F")]
     pub direct_share: Option<f64>,
     /// Samples per pixel (overrides the scene's sampler); with --time, a cap.
@@ -271,6 +276,7 @@ pub fn run(cli: Cli) -> anyhow::Result<i32> {
         Command::GenerateAssets(args) => assets::run(args),
         Command::Compare(args) => report::run_compare(args),
         Command::Reference(args) => report::run_reference(args),
+        Command::Error(args) => error::run(args),
         Command::PlotHalfvector(args) => plot_halfvector::run(args),
         Command::Stability(args) => run_stability(args),
     }

@@ -114,6 +114,33 @@ pub fn relative_error_map(img: &ImageBuf, reference: &ImageBuf, eps: f64) -> any
         .collect())
 }
 
+/// The image averaged over `block`×`block` tiles (edge tiles average what they hold), colour channels
+/// only: error on block means separates bias and low-frequency error from per-pixel noise, which a
+/// noisy reference also carries.
+pub fn block_means(img: &ImageBuf, block: usize) -> ImageBuf {
+    let block = block.max(1);
+    let (bw, bh) = (img.width.div_ceil(block), img.height.div_ceil(block));
+    let mut out = ImageBuf::new(bw, bh, 3);
+    for by in 0..bh {
+        for bx in 0..bw {
+            let mut sum = [0.0f64; 3];
+            let mut n = 0usize;
+            for y in by * block..((by + 1) * block).min(img.height) {
+                for x in bx * block..((bx + 1) * block).min(img.width) {
+                    for (c, s) in sum.iter_mut().enumerate() {
+                        *s += channel(img, y * img.width + x, c);
+                    }
+                    n += 1;
+                }
+            }
+            for (c, s) in sum.iter().enumerate() {
+                out.data[(by * bw + bx) * 3 + c] = (s / n as f64) as f32;
+            }
+        }
+    }
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -148,5 +175,17 @@ mod tests {
     fn sizes_must_match() {
         let err = compute(&constant(2, 2, [0.0; 3]), &constant(2, 3, [0.0; 3]), 0.0).unwrap_err();
         assert!(err.to_string().contains("2x2") && err.to_string().contains("2x3"), "{err}");
+    }
+
+    #[test]
+    fn block_means_average_each_tile_including_the_partial_edge_tiles() {
+        let mut img = ImageBuf::new(3, 2, 3);
+        for (p, px) in img.data.chunks_mut(3).enumerate() {
+            px.copy_from_slice(&[p as f32, 1.0, 2.0 * p as f32]);
+        }
+        // pixels 0 1 2 / 3 4 5 in 2×2 tiles: {0,1,3,4} and {2,5}
+        let blocks = block_means(&img, 2);
+        assert_eq!((blocks.width, blocks.height), (2, 1));
+        assert_eq!(blocks.data, vec![2.0, 1.0, 4.0, 3.5, 1.0, 7.0]);
     }
 }

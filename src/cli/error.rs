@@ -1,0 +1,124 @@
+//! `hslt error`: the error of finished renders against a reference, the numbers `compare` reports
+//! but for images made elsewhere (separate runs, other seeds, other renderers). With two references
+//! (independent renders of the same scene) it compares against their mean and prints the mean's own
+//! noise, so an error near that floor is read as such.
+
+use crate::image::{read_exr_metadata, read_image, ImageBuf};
+use crate::report::metrics::{self, block_means, ErrorMetrics};
+use crate::report::DEFAULT_REL_EPSILON;
+use anyhow::{bail, Context};
+use clap::Args;
+use std::path::{Path, PathBuf};
+
+/// Arguments of `hslt error`.
+#[derive(Args, Debug)]
+pub struct ErrorArgs {
+    /// Images to measure (EXR, or anything OpenImageIO reads; 8-bit images are linearised).
+    #[arg(required = true)]
+    pub images: Vec<PathBuf>,
+    /// The reference image; given twice (two independent renders), their mean is the reference.
+    #[arg(long, required = true, num_args = 1)]
+    pub reference: Vec<PathBuf>,
+    /// ε of the relative MSE, mean of (x − r)² / (r² + ε).
+    #[arg(long, default_value_t = DEFAULT_REL_EPSILON)]
+    pub epsilon: f64,
+    /// Also the relative MSE of N×N block means (low-frequency error and bias, less of the noise).
+    #[arg(long, value_name = "N", default_value_t = 8)]
+    pub block: usize,
+}
+
+fn read(path: &Path) -> anyhow::Result<ImageBuf> {
+    read_image(path, true).with_context(|| format!("cannot read {}", path.display()))
+}
+
+/// The metadata value `key` of an EXR written by `hslt render`, or "-".
+fn meta_value(path: &Path, key: &str) -> String {
+    read_exr_metadata(path)
+        .ok()
+        .and_then(|meta| meta.into_iter().find(|(k, _)| k == key).map(|(_, v)| v))
+        .unwrap_or_else(|| "-".into())
+}
+
+fn mean_luminance(img: &ImageBuf) -> f64 {
+    let colour = if img.channels >= 3 { 3 } else { 1 };
+    let pixels = img.width * img.height;
+    let sum: f64 = (0..pixels)
+        .map(|p| (0..colour).map(|c| img.data[p * img.channels + c] as f64).sum::<f64>() / colour as f64)
+        .sum();
+    sum / pixels.max(1) as f64
+}
+
+/// Averages two references of the same size into a three-channel image.
+fn average(a: &ImageBuf, b: &ImageBuf, names: (&Path, &Path)) -> anyhow::Result<ImageBuf> {
+    if (a.width, a.height) != (b.width, b.height) {
+        bail!(
+            "the references differ in size: {} is {}x{}, {} is {}x{}",
+            names.0.display(),
+            a.width,
+            a.height,
+            names.1.display(),
+            b.width,
+            b.height
+        );
+    }
+    let mut out = ImageBuf::new(a.width, a.height, 3);
+    for p in 0..a.width * a.height {
+        for c in 0..3 {
+            let get = |img: &ImageBuf| img.data[p * img.channels + c.min(img.channels.min(3) - 1)];
+            out.data[p * 3 + c] = 0.5 * (get(a) + get(b));
+        }
+    }
+    Ok(out)
+}
+
+pub fn run(args: ErrorArgs) -> anyhow::Result<i32> {
+    if !(args.epsilon >= 0.0 && args.epsilon.is_finite()) {
+        bail!("--epsilon must be a finite number ≥ 0, got {}", args.epsilon);
+    }
+    if args.block == 0 {
+        bail!("--block must be at least 1");
+    }
+    let reference = match args.reference.as_slice() {
+        [one] => read(one)?,
+        [a, b] => {
+            let (ia, ib) = (read(a)?, read(b)?);
+            let mean = average(&ia, &ib, (a, b))?;
+            // Two independent renders differ by twice their variance; their mean carries half of one.
+            let halves = metrics::compute(&ia, &ib, args.epsilon)?;
+            println!(
+                "reference: mean of {} and {}; their relative MSE {:.3e}, so the mean's own noise is about {:.1e}",
+                a.display(),
+                b.display(),
+                halves.rel_mse,
+                halves.rel_mse / 4.0
+            );
+            mean
+        }
+        more => bail!("--reference takes one or two images, got {}", more.len()),
+    };
+    let reference_blocks = block_means(&reference, args.block);
+    println!("reference mean {:.5}", mean_luminance(&reference));
+    let block_header = format!("rel MSE {0}×{0}", args.block);
+    println!(
+        "| image | integrator | seed | spp | rel MSE | {block_header} | RMSE | MAE | mean |\n|---|---|---|---|---|---|---|---|---|"
+    );
+    for path in &args.images {
+        let img = read(path)?;
+        let ErrorMetrics { rel_mse, rmse, mae } = metrics::compute(&img, &reference, args.epsilon)
+            .with_context(|| format!("{} against the reference", path.display()))?;
+        let blocks = metrics::compute(&block_means(&img, args.block), &reference_blocks, args.epsilon)?;
+        println!(
+            "| {} | {} | {} | {} | {:.3e} | {:.2e} | {:.4e} | {:.4e} | {:.5} |",
+            path.display(),
+            meta_value(path, "hslt.integrator"),
+            meta_value(path, "hslt.seed"),
+            meta_value(path, "hslt.spp"),
+            rel_mse,
+            blocks.rel_mse,
+            rmse,
+            mae,
+            mean_luminance(&img)
+        );
+    }
+    Ok(0)
+}
