@@ -4,7 +4,7 @@
 
 use hslt::cli::load_scene;
 use hslt::integrators::{make_with, DepthLimits, IntegratorKind, IntegratorSettings};
-use hslt::manifold::{path_constraints, path_etas, path_geometry};
+use hslt::manifold::{path_constraints, path_etas, path_geometry, path_geometry_in_chart};
 use hslt::metropolis::mutations::halfvector::{
     applicable, relative_mismatch, walk_from, HalfVectorMutation, HalfVectorParams, TraceDirection,
     TraceStart, REVERSIBILITY_TOLERANCE,
@@ -33,10 +33,13 @@ fn target(state: &PathState) -> f64 {
 }
 
 /// ln of |det J| · Π_Dirac |dω_o/dh⊥|, the factor between the half-vector kernel and the chain's measure.
-fn ln_det_j(scene: &Scene, path: &[hslt::path::Vertex]) -> f64 {
-    let (g, eta) = (path_geometry(path), path_etas(scene, path));
+/// ln |det J| · Π_Dirac |dω_o/dh⊥| of `path` with its frames in `chart` (another path's frame chart:
+/// each kernel reads the other path in its own chart).
+fn ln_det_j(scene: &Scene, path: &[hslt::path::Vertex], chart: &[glam::DVec3]) -> f64 {
+    let (g, eta) = (path_geometry_in_chart(path, Some(chart)), path_etas(scene, path));
     let c = path_constraints(&g, &eta).unwrap();
-    c.jacobian.factor().unwrap().log_det().ln_abs + hslt::manifold::log_dirac_factor(path, &g, &eta).unwrap()
+    let dirac = hslt::manifold::log_dirac_factor(path, &path_geometry(path), &eta).unwrap();
+    c.jacobian.factor().unwrap().log_det().ln_abs + dirac
 }
 
 /// Any path: the detailed-balance checks draw from the whole stationary distribution.
@@ -111,8 +114,11 @@ fn sample_proposals(
                 if out.ratio_checks < 200 && p.t_ratio > 0.0 {
                     let forward = mutation.transition_log_density(scene, &x, y).unwrap();
                     let backward = mutation.transition_log_density(scene, y, &x).unwrap();
-                    let expected =
-                        backward + ln_det_j(scene, &x.vertices) - forward - ln_det_j(scene, &y.vertices);
+                    let chart = |p: &PathState| mutation.prepare(scene, &p.vertices, p.film).unwrap().chart;
+                    let (chart_x, chart_y) = (chart(&x), chart(y));
+                    let expected = backward + ln_det_j(scene, &x.vertices, &chart_y)
+                        - forward
+                        - ln_det_j(scene, &y.vertices, &chart_x);
                     assert!(
                         (p.t_ratio.ln() - expected).abs() < 1e-9 * (1.0 + expected.abs()),
                         "ln ratio {} but densities give {expected}",
@@ -311,7 +317,9 @@ fn check_light_walk_reaches_the_camera_solution(rel: &str, defines: &[(&str, &st
         if targets.len() != prepared.h.len() {
             continue;
         }
-        let walk = |start| walk_from(&s, &x.vertices, &prepared.eta, &targets, start, &params.walk, &mut 0);
+        let walk = |start| {
+            walk_from(&s, &x.vertices, &prepared.eta, &targets, &prepared.chart, start, &params.walk, &mut 0)
+        };
         match (walk(TraceStart::Camera), walk(TraceStart::Light)) {
             (Ok(cam), Ok(light)) => {
                 both += 1;

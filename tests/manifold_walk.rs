@@ -5,7 +5,9 @@
 use glam::{DVec2, DVec3, Vec3};
 use hslt::bench::{proposal_walks, stationary_starts};
 use hslt::geometry::Ray;
-use hslt::manifold::{path_etas, walk, walk_counting_rays, walk_many, WalkError, WalkJob, WalkSettings};
+use hslt::manifold::{
+    path_etas, walk, walk_in_chart_counting_rays, walk_many, WalkError, WalkJob, WalkSettings,
+};
 use hslt::metropolis::mutations::halfvector::HalfVectorParams;
 use hslt::path::Vertex;
 use hslt::scene::{LoadOptions, Scene};
@@ -191,7 +193,10 @@ fn walks_in_flight_match_single_walks_bit_for_bit_on_jewelry() {
         .iter()
         .map(|job| {
             let mut rays = 0;
-            (walk_counting_rays(&scene, job.path, job.eta, job.target, &settings, &mut rays), rays)
+            let walk = walk_in_chart_counting_rays(
+                &scene, job.path, job.eta, job.target, job.chart, &settings, &mut rays,
+            );
+            (walk, rays)
         })
         .collect();
     let converged = alone.iter().filter(|(r, _)| r.is_ok()).count();

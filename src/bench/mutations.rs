@@ -104,11 +104,13 @@ pub struct ProposalWalk {
     pub path: Vec<Vertex>,
     pub eta: Vec<f64>,
     pub target: Vec<DVec2>,
+    /// The start path's frame chart, which the mutation's walk holds (`manifold::frame_chart`).
+    pub chart: Vec<glam::DVec3>,
 }
 
 impl ProposalWalk {
     pub fn job(&self) -> WalkJob<'_> {
-        WalkJob { path: &self.path, eta: &self.eta, target: &self.target }
+        WalkJob { path: &self.path, eta: &self.eta, target: &self.target, chart: Some(&self.chart) }
     }
 }
 
@@ -132,7 +134,7 @@ pub fn proposal_walks(
                 let u = [rng.next_f64(), rng.next_f64()];
                 target.push(step.proposal(*centre)?.sample(u)?);
             }
-            Some(ProposalWalk { path: x.vertices.clone(), eta: prepared.eta, target })
+            Some(ProposalWalk { path: x.vertices.clone(), eta: prepared.eta, target, chart: prepared.chart })
         })
         .collect()
 }

@@ -322,6 +322,28 @@ pub fn path_geometry(path: &[Vertex]) -> Vec<LocalGeometry> {
     path.iter().map(LocalGeometry::from_vertex).collect()
 }
 
+/// Per inner vertex, the reference direction its projection frame is built from: the *chart* in
+/// which the path's half vectors are coordinates. A walk holds its start path's chart
+/// (`path_geometry_in_chart`), so a vertex that moves across the seam of `normal_frame_reference`
+/// keeps a continuous h⊥ instead of one that jumps by the angle between the two references.
+pub fn frame_chart(geometry: &[LocalGeometry]) -> Vec<DVec3> {
+    let inner = geometry.len().saturating_sub(2);
+    geometry[1..=inner].iter().map(|g| g.frame_ref).collect()
+}
+
+/// `path_geometry` with the inner vertices' projection frames built from `chart` (one reference per
+/// inner vertex, from `frame_chart`) instead of from their own normals; `None` is `path_geometry`.
+pub fn path_geometry_in_chart(path: &[Vertex], chart: Option<&[DVec3]>) -> Vec<LocalGeometry> {
+    let mut geometry = path_geometry(path);
+    if let Some(chart) = chart {
+        assert_eq!(chart.len() + 2, path.len(), "one chart reference per inner vertex");
+        for (g, reference) in geometry[1..].iter_mut().zip(chart) {
+            g.frame_ref = *reference;
+        }
+    }
+    geometry
+}
+
 /// The eta of each path vertex's BSDF (1 for endpoints and non-refracting BSDFs).
 pub fn path_etas(scene: &Scene, path: &[Vertex]) -> Vec<f64> {
     path.iter().map(|v| v.bsdf(scene).map_or(1.0, |b| b.eta() as f64)).collect()

@@ -11,8 +11,9 @@ pub mod walk;
 
 pub use blocktri::{invert_block, BlockLu, BlockTridiagonal, LogDet, Singular};
 pub use constraint::{
-    half_vector, half_vector_constraint, normal_frame_reference, path_constraints, path_etas, path_geometry,
-    path_half_vectors, ConstraintError, LocalGeometry, PathConstraints, VertexConstraint,
+    frame_chart, half_vector, half_vector_constraint, normal_frame_reference, path_constraints, path_etas,
+    path_geometry, path_geometry_in_chart, path_half_vectors, ConstraintError, LocalGeometry,
+    PathConstraints, VertexConstraint,
 };
 pub use sampling::{
     bandwidth_shares, beckmann_to_phong, mobius, mobius_inverse, step_sizes, HalfVectorProposal,
@@ -20,6 +21,6 @@ pub use sampling::{
 };
 pub use trace::{direction_per_half_vector, log_dirac_factor, scatter_with_half_vector};
 pub use walk::{
-    corrector_pass, corrector_pass_counting_rays, walk, walk_counting_rays, walk_many, walk_many_through,
-    CorrectorFailure, WalkError, WalkJob, WalkResult, WalkSettings,
+    corrector_pass, corrector_pass_counting_rays, walk, walk_counting_rays, walk_in_chart_counting_rays,
+    walk_many, walk_many_through, CorrectorFailure, WalkError, WalkJob, WalkResult, WalkSettings,
 };

@@ -4,9 +4,11 @@
 //! Walks are resumable states advanced one corrector row at a time, so `walk_many` can put the rays of
 //! many walks in flight into one batched query (issue #7); `walk` is `walk_many` with one job.
 
-use glam::{DVec2, Vec3};
+use glam::{DVec2, DVec3, Vec3};
 
-use super::constraint::{path_constraints, path_geometry, ConstraintError, LocalGeometry, PathConstraints};
+use super::constraint::{
+    path_constraints, path_geometry_in_chart, ConstraintError, LocalGeometry, PathConstraints,
+};
 use crate::accel::{Hit, RayQuery};
 use crate::geometry::{offset_origin, Ray};
 use crate::path::Vertex;
@@ -114,12 +116,15 @@ fn same_side_sign(path: &[Vertex], i: usize) -> bool {
 }
 
 /// One walk for `walk_many`: a start path (x_0 and x_k stay fixed), the BSDF index ratio of each
-/// vertex (see `path_etas`) and one target half vector per inner vertex.
+/// vertex (see `path_etas`) and one target half vector per inner vertex. `chart`, when given, is the
+/// frame reference per inner vertex the half vectors (targets and iterates) are coordinates in, held
+/// for the whole walk (`frame_chart`); `None` builds each iterate's frames from its own normals.
 #[derive(Clone, Copy, Debug)]
 pub struct WalkJob<'a> {
     pub path: &'a [Vertex],
     pub eta: &'a [f64],
     pub target: &'a [DVec2],
+    pub chart: Option<&'a [DVec3]>,
 }
 
 /// Moves the inner vertices of `path` (x_0 and x_k fixed) until their half vectors equal `target`.
@@ -144,7 +149,20 @@ pub fn walk_counting_rays(
     settings: &WalkSettings,
     rays: &mut u64,
 ) -> Result<WalkResult, WalkError> {
-    let job = WalkJob { path, eta, target };
+    walk_in_chart_counting_rays(scene, path, eta, target, None, settings, rays)
+}
+
+/// `walk_counting_rays` with the half vectors in `chart` (see `WalkJob`).
+pub fn walk_in_chart_counting_rays(
+    scene: &Scene,
+    path: &[Vertex],
+    eta: &[f64],
+    target: &[DVec2],
+    chart: Option<&[DVec3]>,
+    settings: &WalkSettings,
+    rays: &mut u64,
+) -> Result<WalkResult, WalkError> {
+    let job = WalkJob { path, eta, target, chart };
     let mut results = walk_many(scene, &[job], settings, std::slice::from_mut(rays));
     results.pop().expect("one result per job")
 }
@@ -237,7 +255,7 @@ impl WalkState {
     fn start(job: &WalkJob, settings: &WalkSettings) -> Result<WalkState, WalkError> {
         let (path, target) = (job.path, job.target);
         assert!(path.len() >= 3 && target.len() == path.len() - 2, "one target per inner vertex");
-        let constraints = path_constraints(&path_geometry(path), job.eta)?;
+        let constraints = path_constraints(&path_geometry_in_chart(path, job.chart), job.eta)?;
         let error = max_error(&constraints.h, target);
         let tolerance =
             settings.tolerance.min(settings.relative_tolerance * error).max(settings.precision_floor);
@@ -291,7 +309,7 @@ impl WalkState {
         };
         let dh: Vec<DVec2> = job.target.iter().zip(&self.constraints.h).map(|(t, h)| *t - *h).collect();
         self.dx = lu.solve(&dh);
-        self.geometry = path_geometry(&self.current);
+        self.geometry = path_geometry_in_chart(&self.current, job.chart);
         self.restart_pass(if settings.candidates_at_once { CANDIDATES } else { 1 });
         None
     }
@@ -315,7 +333,9 @@ impl WalkState {
             if pass.status[c].is_err() {
                 continue;
             }
-            let Ok(new_constraints) = path_constraints(&path_geometry(&pass.built[c]), job.eta) else {
+            let Ok(new_constraints) =
+                path_constraints(&path_geometry_in_chart(&pass.built[c], job.chart), job.eta)
+            else {
                 continue;
             };
             let new_error = max_error(&new_constraints.h, job.target);

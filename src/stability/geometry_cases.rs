@@ -63,8 +63,8 @@ pub fn cases() -> Vec<Case> {
             name: "tangent-frame discontinuities",
             expected:
                 "a rotated (u, v) parameterisation gives the same proposals from the same random numbers and \
-                 the same image; no-UV meshes the same acceptance; walks at a sphere's uv pole as good as on \
-                 its equator",
+                 the same image; no-UV meshes the same acceptance; walks at a sphere's uv pole and across the \
+                 frame field's switch as good as on its equator, with detailed balance across the switch",
             run: frames::frame_rotation,
         },
         Case {

@@ -8,8 +8,9 @@ use glam::{DMat2, DVec2, DVec3};
 use super::super::chain::{Failure, Mutation, MutationStats, Proposal};
 use super::super::path_state::{PathContext, PathState};
 use crate::manifold::{
-    bandwidth_shares, invert_block, log_dirac_factor, path_constraints, path_etas, path_geometry, step_sizes,
-    walk_counting_rays, LocalGeometry, StepSizes, WalkError, WalkResult, WalkSettings,
+    bandwidth_shares, frame_chart, invert_block, log_dirac_factor, path_constraints, path_etas,
+    path_geometry, path_geometry_in_chart, step_sizes, walk_in_chart_counting_rays, LocalGeometry, StepSizes,
+    WalkError, WalkResult, WalkSettings,
 };
 use crate::path::{PathView, ScatterClass, Vertex, VertexKind};
 use crate::sampling::Sampler;
@@ -98,30 +99,42 @@ impl TraceDirection {
     }
 }
 
-/// The Newton walk of `path` to `target` (one per inner vertex, camera to light order), with the
-/// corrector's rays cast from the chosen end. From the light it walks the reversed path and reverses
-/// the result: every inner vertex's half vector is the same quantity both ways (reflection is
-/// symmetric in wi, wo; for refraction H~ = wi + η·wo becomes wo + wi/η = H~/η, the same direction, and
-/// frames are per vertex), so the targets, the constraint and its Jacobian (rows and columns reversed
-/// blockwise, the same |det J|) are unchanged, and the walk's side checks and endpoint handling are
-/// symmetric in the two ends.
+/// The Newton walk of `path` to `target` (one per inner vertex, camera to light order, coordinates in
+/// `chart`, see `walk_in_chart_counting_rays`), with the corrector's rays cast from the chosen end.
+/// From the light it walks the reversed path and reverses the result: every inner vertex's half
+/// vector is the same quantity both ways (reflection is symmetric in wi, wo; for refraction
+/// H~ = wi + η·wo becomes wo + wi/η = H~/η, the same direction, and frames are per vertex), so the
+/// targets, the constraint and its Jacobian (rows and columns reversed blockwise, the same |det J|)
+/// are unchanged, and the walk's side checks and endpoint handling are symmetric in the two ends.
+#[allow(clippy::too_many_arguments)]
 pub fn walk_from(
     scene: &Scene,
     path: &[Vertex],
     eta: &[f64],
     target: &[DVec2],
+    chart: &[DVec3],
     start: TraceStart,
     settings: &WalkSettings,
     rays: &mut u64,
 ) -> Result<WalkResult, WalkError> {
     match start {
-        TraceStart::Camera => walk_counting_rays(scene, path, eta, target, settings, rays),
+        TraceStart::Camera => {
+            walk_in_chart_counting_rays(scene, path, eta, target, Some(chart), settings, rays)
+        }
         TraceStart::Light => {
             let reversed = |v: &[Vertex]| v.iter().rev().copied().collect::<Vec<_>>();
             let eta_rev: Vec<f64> = eta.iter().rev().copied().collect();
             let target_rev: Vec<DVec2> = target.iter().rev().copied().collect();
-            let mut result =
-                walk_counting_rays(scene, &reversed(path), &eta_rev, &target_rev, settings, rays)?;
+            let chart_rev: Vec<DVec3> = chart.iter().rev().copied().collect();
+            let mut result = walk_in_chart_counting_rays(
+                scene,
+                &reversed(path),
+                &eta_rev,
+                &target_rev,
+                Some(&chart_rev),
+                settings,
+                rays,
+            )?;
             result.path.reverse();
             result.h.reverse();
             Ok(result)
@@ -175,6 +188,17 @@ pub struct PreparedPath {
     /// The Dirac vertices among x_1 … x_{k-1}: held at h = 0, no step, no kernel factor.
     pub held: Vec<bool>,
     pub steps: Vec<StepSizes>,
+    /// The frame chart `h` is in: each inner vertex's frame reference from its own normal
+    /// (`manifold::frame_chart`). A proposal's walk holds it, and the other path's half vectors and
+    /// |det J| are evaluated in it (`in_chart`) for this kernel's density.
+    pub chart: Vec<DVec3>,
+}
+
+/// A path's half vectors and ln |det J| in another path's frame chart.
+#[derive(Clone, Debug)]
+pub struct ChartCoordinates {
+    pub h: Vec<DVec2>,
+    pub log_det: f64,
 }
 
 impl PreparedPath {
@@ -202,10 +226,18 @@ impl PreparedPath {
         total / (2 * free.len()).max(1) as f64
     }
 
-    /// ln of the factor T(x→y)/T_H(x→y) that turns the half-vector kernel into the chain's measure:
-    /// |det J| · Π_Dirac |dω_o/dh⊥| (digest 2.4; the Dirac factor as in MEMLT, docs/mlt.md).
-    pub fn log_measure(&self) -> f64 {
-        self.log_det + self.log_dirac
+    /// This path's half vectors and ln |det J| in `chart`: its own when the charts agree (the common
+    /// case; they differ only where a vertex crossed the seam of `normal_frame_reference`). |det J| ·
+    /// Π_Dirac |dω_o/dh⊥| turns a half-vector kernel into the chain's area measure (digest 2.4; the
+    /// Dirac factor as in MEMLT, docs/mlt.md). The Dirac factor needs no evaluation in another chart:
+    /// its vertices sit at h = 0, where a frame rotation leaves |dω_o/dh⊥| unchanged.
+    pub fn in_chart(&self, path: &[Vertex], chart: &[DVec3]) -> Option<ChartCoordinates> {
+        if chart == self.chart.as_slice() {
+            return Some(ChartCoordinates { h: self.h.clone(), log_det: self.log_det });
+        }
+        let constraints = path_constraints(&path_geometry_in_chart(path, Some(chart)), &self.eta).ok()?;
+        let log_det = constraints.jacobian.factor().ok()?.log_det().ln_abs;
+        log_det.is_finite().then_some(ChartCoordinates { h: constraints.h, log_det })
     }
 }
 
@@ -286,7 +318,8 @@ impl HalfVectorMutation {
         } else {
             bandwidths.iter().map(|&bw| step_sizes(bw, DVec2::NAN, DVec2::NAN)).collect()
         };
-        Ok(PreparedPath { eta, h: constraints.h, log_det, log_dirac, held, steps })
+        let chart = frame_chart(&geometry);
+        Ok(PreparedPath { eta, h: constraints.h, log_det, log_dirac, held, steps, chart })
     }
 
     /// ln T_H(from → to): `from`'s proposal kernel at `to`'s half vectors (both applicable paths of the
@@ -294,7 +327,7 @@ impl HalfVectorMutation {
     pub fn transition_log_density(&self, scene: &Scene, from: &PathState, to: &PathState) -> Option<f64> {
         let prepared_from = self.prepare(scene, &from.vertices, from.film).ok()?;
         let prepared_to = self.prepare(scene, &to.vertices, to.film).ok()?;
-        prepared_from.log_density(&prepared_to.h)
+        prepared_from.log_density(&prepared_to.in_chart(&to.vertices, &prepared_from.chart)?.h)
     }
 }
 
@@ -348,6 +381,7 @@ impl<'a> Mutation<PathState, PathContext<'a>> for HalfVectorMutation {
             x,
             &prepared_x.eta,
             &targets,
+            &prepared_x.chart,
             start_x,
             &self.params.walk,
             &mut ctx.counters.rays,
@@ -367,6 +401,14 @@ impl<'a> Mutation<PathState, PathContext<'a>> for HalfVectorMutation {
         }
         let state = PathState::new(scene, walked).ok_or(Failure::Failed("zero_contribution"))?;
         let prepared_y = self.prepare(scene, &state.vertices, state.film).map_err(Failure::Failed)?;
+        // Each kernel lives in its own path's frame chart, so each density needs the other path's
+        // coordinates in it: T(x→y) = q_X(h^X(Y)) |det J^X(Y)| in area measure, and likewise back.
+        let y_in_x =
+            prepared_y.in_chart(&state.vertices, &prepared_x.chart).ok_or(Failure::Failed("degenerate"))?;
+        let x_in_y = prepared_x.in_chart(x, &prepared_y.chart).ok_or(Failure::Failed("degenerate"))?;
+        if prepared_y.chart != prepared_x.chart {
+            stats.add_sum("chart_switches", 1.0);
+        }
         // Reversibility: Y's walk to X's half vectors must come back to X, or the map from half vectors
         // to paths is not locally one-to-one here and the densities below would not describe it.
         // The walk back starts from the end the direction picks for Y, as a proposal from Y would: the
@@ -379,7 +421,8 @@ impl<'a> Mutation<PathState, PathContext<'a>> for HalfVectorMutation {
             scene,
             &state.vertices,
             &prepared_y.eta,
-            &prepared_x.h,
+            &x_in_y.h,
+            &prepared_y.chart,
             self.params.direction.start_for(&state.vertices),
             &self.params.walk,
             &mut ctx.counters.rays,
@@ -390,13 +433,15 @@ impl<'a> Mutation<PathState, PathContext<'a>> for HalfVectorMutation {
         }
         // Both kernels at the half vectors the paths actually have (the walk's achieved h, not the
         // sampled targets), with the area-measure form of the ratio (digest 2.4).
-        let forward_density = prepared_x.log_density(&prepared_y.h).ok_or(Failure::Failed("degenerate"))?;
-        let Some(backward_density) = prepared_y.log_density(&prepared_x.h) else {
+        let forward_density = prepared_x.log_density(&y_in_x.h).ok_or(Failure::Failed("degenerate"))?;
+        let Some(backward_density) = prepared_y.log_density(&x_in_y.h) else {
             // Y's kernel cannot propose X: the move cannot be reversed, so it is never accepted.
             return Ok(Proposal { state, t_ratio: 0.0 });
         };
-        let log_ratio =
-            backward_density + prepared_x.log_measure() - forward_density - prepared_y.log_measure();
+        let log_ratio = backward_density + x_in_y.log_det + prepared_x.log_dirac
+            - forward_density
+            - y_in_x.log_det
+            - prepared_y.log_dirac;
         let t_ratio = log_ratio.exp();
         if !t_ratio.is_finite() {
             return Err(Failure::Failed("degenerate"));

@@ -222,6 +222,22 @@ pub fn balance(
     params: HalfVectorParams,
     seed: u64,
 ) -> Balance {
+    balance_where(scene, passes, seed_paths, draws, params, seed, |_, _| true)
+}
+
+/// `balance` restricted to the proposals (x, y) with `keep(x, y)`, which must be symmetric
+/// (keep(x, y) = keep(y, x)): both identities hold on any such event, and restricting them to where
+/// a suspect term of the ratio matters keeps the other proposals' noise out. `valid` counts the kept
+/// valid proposals.
+pub fn balance_where(
+    scene: &Scene,
+    passes: usize,
+    seed_paths: usize,
+    draws: usize,
+    params: HalfVectorParams,
+    seed: u64,
+    keep: impl Fn(&PathState, &PathState) -> bool,
+) -> Balance {
     let bdpt = bdpt(scene);
     let mut valid_means = Vec::new();
     let mut tail_means = Vec::new();
@@ -257,7 +273,7 @@ pub fn balance(
                         out.non_finite += 1;
                         None
                     } else {
-                        Some(r)
+                        keep(&x, &p.state).then_some(r)
                     }
                 }
             };
