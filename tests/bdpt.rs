@@ -12,7 +12,7 @@ mod common;
 use hslt::cli::load_scene;
 use hslt::geometry::Vec2;
 use hslt::integrators::{Bdpt, DepthLimits, SampleCounters};
-use hslt::path::{mis_weight, MisHeuristic, PathView, VertexKind};
+use hslt::path::{mis_weight, mis_weight_limited, MisHeuristic, PathView, VertexKind};
 use hslt::sampling::Sampler;
 use hslt::scene::Scene;
 use std::path::Path;
@@ -167,6 +167,22 @@ fn check_connection_densities(rel: &str, defines: &[(&str, &str)], samples: usiz
                         (total - 1.0).abs() < 1e-4,
                         "{rel}: path of {n} vertices, strategies {possible:?}: MIS weights sum to {total}"
                     );
+                    // Capped light sub-paths (`Bdpt::max_light_vertices`, the Metropolis direct
+                    // pass): the strategies with s ≤ cap must share the weight alone.
+                    for cap in [1, 2] {
+                        let kept: Vec<usize> = possible.iter().copied().filter(|&tt| n - tt <= cap).collect();
+                        if kept.is_empty() {
+                            continue;
+                        }
+                        let total: f64 = kept
+                            .iter()
+                            .map(|&tt| mis_weight_limited(&s, &path, &scratch, tt, heuristic, cap) as f64)
+                            .sum();
+                        assert!(
+                            (total - 1.0).abs() < 1e-4,
+                            "{rel}: path of {n} vertices, s ≤ {cap}, strategies {kept:?}: weights sum to {total}"
+                        );
+                    }
                 }
                 weights_checked += 1;
             }

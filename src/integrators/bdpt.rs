@@ -12,7 +12,7 @@ use crate::bsdf::TransportMode;
 use crate::geometry::{offset_origin, Ray, Vec2, Vec3};
 use crate::lights::{EmissionSample, Light};
 use crate::path::walk::{self, WalkLimits};
-use crate::path::{geometry_term, mis_weight, visible, MisHeuristic, PathPdfs, PathView, Vertex};
+use crate::path::{geometry_term, mis_weight_limited, visible, MisHeuristic, PathPdfs, PathView, Vertex};
 use crate::render::Splat;
 use crate::sampling::{SampleSource, Sampler};
 use crate::scene::Scene;
@@ -32,6 +32,11 @@ pub struct Bdpt {
     /// Metropolis integrators raise it to 4 when direct illumination is rendered separately
     /// (`metropolis::direct`), so the seeding pass and PSSMLT's samples carry indirect light only.
     pub min_path_vertices: usize,
+    /// Most vertices of the light sub-path, and so of the light side of every strategy (s ≤ this);
+    /// the MIS weights leave out the strategies above it. Unbounded by default; the Metropolis
+    /// direct pass sets 1, which keeps the path tracer's strategies plus the light seen directly
+    /// through a connection to the camera (s = 1, t = 1; `metropolis::direct`).
+    pub max_light_vertices: usize,
 }
 
 /// One weighted strategy estimate of a sample.
@@ -79,6 +84,7 @@ impl Bdpt {
             heuristic: MisHeuristic::Power,
             strategy_layers: None,
             min_path_vertices: 2,
+            max_light_vertices: usize::MAX,
         }
     }
 
@@ -118,7 +124,7 @@ impl Bdpt {
         sampler.start_stream(1);
         // A light path of s vertices only pairs with t >= 1 camera vertices, so it needs at most
         // max_vertices - 1 of them.
-        let light_max = max_vertices - 1;
+        let light_max = (max_vertices - 1).min(self.max_light_vertices);
         let u_light = sampler.next_1d();
         let u_pos = sampler.next_2d();
         let u_dir = sampler.next_2d();
@@ -277,7 +283,7 @@ impl Bdpt {
         };
         let path = PathView { camera: &sub.camera[..t], light: light_side };
         let pdfs = connection_pdfs(scene, &path, t);
-        let w = mis_weight(scene, &path, &pdfs, t, self.heuristic);
+        let w = mis_weight_limited(scene, &path, &pdfs, t, self.heuristic, self.max_light_vertices);
         Some(Contribution { s, t, value: value * w, film, endpoint: sampled_light })
     }
 

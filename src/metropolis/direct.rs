@@ -1,11 +1,11 @@
 //! Direct illumination rendered apart from the Metropolis chains, as Mitsuba's MLT family does by
 //! default (`directSamples`, which the HSLT paper's comparisons inherit): paths of one or two segments
-//! (emitters seen directly, one-bounce lighting) are estimated by the path tracer (light sampling and
-//! BSDF sampling under MIS) restricted to them, and the chains spend all their mutations on indirect
-//! light. PSSMLT does so by default, and so do the
-//! path-space methods whose mixture has a large step (`DirectPass::for_path_space` says why).
+//! (emitters seen directly, one-bounce lighting) are estimated by BDPT restricted to them and to light
+//! sub-paths of one vertex, and the chains spend all their mutations on indirect light. PSSMLT does so
+//! by default, and so do the path-space methods whose mixture has a large step
+//! (`DirectPass::for_path_space` says why).
 
-use crate::integrators::{Bdpt, DepthLimits, PathTracer};
+use crate::integrators::Bdpt;
 use crate::render::{self, Film, RenderOptions, RenderStats};
 use crate::scene::Scene;
 use std::sync::atomic::AtomicBool;
@@ -27,7 +27,7 @@ pub const DEFAULT_DIRECT_SHARE: f64 = 0.1;
 pub enum DirectPass {
     /// No separate pass: the chains render direct illumination too.
     Off,
-    /// This many BDPT samples per pixel.
+    /// This many samples per pixel.
     Samples(u32),
     /// This fraction of the render's time limit (`Samples(DEFAULT_DIRECT_SAMPLES)` without one).
     Share(f64),
@@ -91,16 +91,19 @@ pub fn chain_bdpt(mut bdpt: Bdpt, direct: DirectPass) -> Bdpt {
     bdpt
 }
 
-/// Renders the paths the chains leave out (`chain_bdpt`) with the path tracer for the budget `pass`
-/// gives and adds them to `film` as one sample per pixel, so the chains' splats land on top. Adds its
-/// rays and invalid samples to `stats` and its sample count and time to `metadata`; nothing is rendered
-/// when the pass is off or the chains keep every path. Its time counts against the render's time limit.
+/// Renders the paths the chains leave out (`chain_bdpt`) for the budget `pass` gives and adds them to
+/// `film` as one sample per pixel, so the chains' splats land on top. Adds its rays and invalid
+/// samples to `stats` and its sample count and time to `metadata`; nothing is rendered when the pass
+/// is off or the chains keep every path. Its time counts against the render's time limit.
 ///
-/// Why the path tracer and not BDPT: for paths this short BDPT's extra strategies (light tracing to
-/// the camera, s = 2) add almost nothing, yet cost a light sub-path per sample. On the rings scene
-/// (128×96, 6 s, 3 seeds) the path tracer takes 1 780 samples per pixel to BDPT's 663 and leaves a
-/// relative MSE of 9.4e-5 against BDPT's 3.3e-4; with BDPT the pass was the larger part of every
-/// Metropolis method's error in a 60-s render (docs/benchmarks.md, session 9).
+/// The estimator is BDPT with light sub-paths of one vertex (`Bdpt::max_light_vertices`): the path
+/// tracer's strategies (emitters hit, light sampling) plus the light seen directly through a
+/// connection to the camera (s = 1, t = 1). Full BDPT's longer light sub-paths add almost nothing for
+/// paths this short and cost a light walk per sample: on the rings scene (128×96, 6 s, 3 seeds) it
+/// left a relative MSE of 4.7e-4 against 2.7e-4 with the cap, and with it the pass was the larger part
+/// of every Metropolis method's error in a 60-s render. The path tracer alone left 1.2e-4 there, but
+/// ten times the cap's error on the Cornell box, whose light it sees only by hitting it
+/// (docs/benchmarks.md, sessions 9–10).
 #[allow(clippy::too_many_arguments)]
 pub fn render_into(
     film: &mut Film,
@@ -119,10 +122,10 @@ pub fn render_into(
     let below = chain_bdpt.min_path_vertices as i32 - 2;
     let max_depth =
         if chain_bdpt.limits.max_depth < 0 { below } else { chain_bdpt.limits.max_depth.min(below) };
-    let direct = PathTracer {
-        limits: DepthLimits { max_depth, ..chain_bdpt.limits },
-        hide_emitters: chain_bdpt.hide_emitters,
-    };
+    let mut direct = chain_bdpt.clone();
+    direct.limits.max_depth = max_depth;
+    direct.min_path_vertices = 2;
+    direct.max_light_vertices = 1;
     let direct_options = RenderOptions {
         spp: samples,
         time_limit,

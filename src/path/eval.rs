@@ -204,6 +204,19 @@ impl<'a> PathView<'a> {
 /// Zero densities next to Dirac vertices stand for a delta factor that appears in both strategies of a
 /// ratio, and are treated as 1 (as in pbrt's BDPT).
 pub fn mis_weight(scene: &Scene, path: &PathView, pdfs: &PathPdfs, t: usize, heuristic: MisHeuristic) -> f32 {
+    mis_weight_limited(scene, path, pdfs, t, heuristic, usize::MAX)
+}
+
+/// `mis_weight` over the strategies with at most `max_light` light-side vertices (s ≤ max_light),
+/// for a BDPT whose light sub-paths are capped (`Bdpt::max_light_vertices`).
+pub fn mis_weight_limited(
+    scene: &Scene,
+    path: &PathView,
+    pdfs: &PathPdfs,
+    t: usize,
+    heuristic: MisHeuristic,
+    max_light: usize,
+) -> f32 {
     let n = path.len();
     let remap = |x: f32| if x != 0.0 { x as f64 } else { 1.0 };
     let power = |r: f64| match heuristic {
@@ -214,6 +227,9 @@ pub fn mis_weight(scene: &Scene, path: &PathView, pdfs: &PathPdfs, t: usize, heu
     // Strategies with fewer camera vertices: x_i moves to the light side.
     let mut ratio = 1.0f64;
     for i in (1..t).rev() {
+        if n - i > max_light {
+            break;
+        }
         ratio *= remap(pdfs.from_light[i]) / remap(pdfs.from_camera[i]);
         if path.strategy_possible(scene, i) {
             sum += power(ratio);

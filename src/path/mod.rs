@@ -7,7 +7,7 @@
 mod eval;
 pub mod walk;
 
-pub use eval::{mis_weight, MisHeuristic, PathPdfs, PathView};
+pub use eval::{mis_weight, mis_weight_limited, MisHeuristic, PathPdfs, PathView};
 
 use crate::bsdf::{Bsdf, BsdfContext, BsdfSample, TransportMode};
 use crate::geometry::{Frame, Vec2, Vec3};
