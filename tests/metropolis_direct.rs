@@ -45,7 +45,7 @@ fn metropolis_kinds() -> Vec<IntegratorKind> {
 #[test]
 fn without_indirect_light_the_image_is_the_direct_pass() {
     // max_depth 2 leaves the chains nothing: every Metropolis integrator must say so and return the
-    // direct pass (BDPT with one-vertex light sub-paths), checked against full BDPT. 32×32 at 256
+    // direct pass (the path tracer, and BDPT for emitters seen directly), checked against full BDPT. 32×32 at 256
     // spp: the image means of two such renders differ by a few tenths of a percent, so 2% is about
     // ten standard errors.
     let scene = cornell(&[("max_depth", "2")]);

@@ -196,8 +196,8 @@ pub struct RenderArgs {
     #[arg(long, value_name = "P", default_value_t = 0.3)]
     pub p_large: f64,
     /// Metropolis (pssmlt, mlt, memlt, hslt, hslt+mlt): samples per pixel of a separate pass for
-    /// direct illumination (paths of one or two segments, by BDPT with one-vertex light sub-paths), so
-    /// the chains render indirect light only, as Mitsuba's MLT family does; 0 leaves direct illumination to the chains [default: 16, or
+    /// direct illumination (paths of one or two segments: the path tracer, and BDPT for emitters seen
+    /// directly), so the chains render indirect light only, as Mitsuba's MLT family does; 0 leaves direct illumination to the chains [default: 16, or
     /// with --time the share --direct-share of it; no pass for path-space mixtures without a large step]
     #[arg(long, value_name = "N", conflicts_with = "direct_share")]
     pub direct_samples: Option<u32>,

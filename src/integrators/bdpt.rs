@@ -34,8 +34,8 @@ pub struct Bdpt {
     pub min_path_vertices: usize,
     /// Most vertices of the light sub-path, and so of the light side of every strategy (s ≤ this);
     /// the MIS weights leave out the strategies above it. Unbounded by default; the Metropolis
-    /// direct pass sets 1, which keeps the path tracer's strategies plus the light seen directly
-    /// through a connection to the camera (s = 1, t = 1; `metropolis::direct`).
+    /// direct pass sets 1 with `max_depth` 1 for the emitters seen directly: the camera ray that hits
+    /// one and the emitter's points joined to the camera (s = 1, t = 1; `metropolis::direct`).
     pub max_light_vertices: usize,
 }
 

@@ -1,11 +1,10 @@
 //! Direct illumination rendered apart from the Metropolis chains, as Mitsuba's MLT family does by
 //! default (`directSamples`, which the HSLT paper's comparisons inherit): paths of one or two segments
-//! (emitters seen directly, one-bounce lighting) are estimated by BDPT restricted to them and to light
-//! sub-paths of one vertex, and the chains spend all their mutations on indirect light. PSSMLT does so
-//! by default, and so do the path-space methods whose mixture has a large step
-//! (`DirectPass::for_path_space` says why).
+//! (emitters seen directly, one-bounce lighting) get a pass of their own, and the chains spend all
+//! their mutations on indirect light. PSSMLT does so by default, and so do the path-space methods
+//! whose mixture has a large step (`DirectPass::for_path_space` says why).
 
-use crate::integrators::Bdpt;
+use crate::integrators::{Bdpt, DepthLimits, PathTracer};
 use crate::render::{self, Film, RenderOptions, RenderStats};
 use crate::scene::Scene;
 use std::sync::atomic::AtomicBool;
@@ -77,6 +76,15 @@ impl DirectPass {
     }
 }
 
+/// Share of the direct pass's time for the emitters seen directly (its second part, `render_into`).
+/// Its samples cost about as much as the path tracer's (rings: 360 and 1 442 samples per pixel in 1.2
+/// and 4.8 s), and where no emitter is in view the share is lost: a fifth raised the rings' direct
+/// error from the path tracer's 1.2e-4 to 1.4e-4. Not tuned further.
+pub const SEEN_SHARE: f64 = 0.2;
+
+/// Mixed into the direct pass's seed for its second part.
+const SEEN_SEED: u64 = 0x5EE2;
+
 /// Mixed into the seed so the direct pass never shares random numbers with the seeding pass or the
 /// chains (whose streams derive from the same seed).
 const DIRECT_SEED: u64 = 0xD1EC_7000_0000_0001;
@@ -96,14 +104,16 @@ pub fn chain_bdpt(mut bdpt: Bdpt, direct: DirectPass) -> Bdpt {
 /// samples to `stats` and its sample count and time to `metadata`; nothing is rendered when the pass
 /// is off or the chains keep every path. Its time counts against the render's time limit.
 ///
-/// The estimator is BDPT with light sub-paths of one vertex (`Bdpt::max_light_vertices`): the path
-/// tracer's strategies (emitters hit, light sampling) plus the light seen directly through a
-/// connection to the camera (s = 1, t = 1). Full BDPT's longer light sub-paths add almost nothing for
-/// paths this short and cost a light walk per sample: on the rings scene (128×96, 6 s, 3 seeds) it
-/// left a relative MSE of 4.7e-4 against 2.7e-4 with the cap, and with it the pass was the larger part
-/// of every Metropolis method's error in a 60-s render. The path tracer alone left 1.2e-4 there, but
-/// ten times the cap's error on the Cornell box, whose light it sees only by hitting it
-/// (docs/benchmarks.md, sessions 9–10).
+/// The pass has two parts. One-bounce light (three vertices) is the path tracer's (light sampling and
+/// BSDF sampling under MIS) with emitters seen directly left out; those (two vertices) are BDPT's
+/// strategies for them, the camera ray that hits the emitter and the emitter's points joined to the
+/// camera (s = 1, t = 1), in `SEEN_SHARE` of the time. Full BDPT's longer light sub-paths add almost
+/// nothing for paths this short and cost a light walk per sample: on the rings scene (128×96, direct
+/// light alone, 6 s, 3 seeds) it left a relative MSE of 4.7e-4 against 1.4e-4 with these two parts,
+/// and with it the pass was the larger part of every Metropolis method's error in a 60-s render. The
+/// path tracer alone (1.2e-4 there) sees a light's edges only by hitting the light: on the Cornell
+/// box at 32×32 it left ten times BDPT's error, which the second part removes (docs/benchmarks.md,
+/// sessions 9–10).
 #[allow(clippy::too_many_arguments)]
 pub fn render_into(
     film: &mut Film,
@@ -122,24 +132,44 @@ pub fn render_into(
     let below = chain_bdpt.min_path_vertices as i32 - 2;
     let max_depth =
         if chain_bdpt.limits.max_depth < 0 { below } else { chain_bdpt.limits.max_depth.min(below) };
-    let mut direct = chain_bdpt.clone();
-    direct.limits.max_depth = max_depth;
-    direct.min_path_vertices = 2;
-    direct.max_light_vertices = 1;
-    let direct_options = RenderOptions {
+    let seed = options.seed ^ DIRECT_SEED;
+    let pass_options = |seed: u64, share: f64| RenderOptions {
         spp: samples,
-        time_limit,
-        seed: options.seed ^ DIRECT_SEED,
+        time_limit: time_limit.map(|t| t.mul_f64(share)),
+        seed,
         progress: false,
         snapshots: None,
         // A run continuing one of N mutations per pixel (first_sample = N >= 1) starts past the
         // `samples` indices the earlier run's direct pass used.
         first_sample: options.first_sample.saturating_mul(samples.unwrap_or(1 << 16)),
     };
-    let (direct_film, direct_stats) = render::render(scene, &direct, &direct_options, cancel);
-    film.add_image_as_sample(&direct_film.to_image());
-    stats.rays += direct_stats.rays;
-    stats.invalid_samples += direct_stats.invalid_samples;
-    metadata.push(("hslt.mlt.direct_samples".into(), direct_stats.min_spp.to_string()));
-    metadata.push(("hslt.mlt.seconds_direct".into(), format!("{:.3}", direct_stats.elapsed.as_secs_f64())));
+    // One-bounce light (three vertices): the path tracer, emitters seen directly left out.
+    let lit = PathTracer { limits: DepthLimits { max_depth, ..chain_bdpt.limits }, hide_emitters: true };
+    let seen_share = if chain_bdpt.hide_emitters { 0.0 } else { SEEN_SHARE };
+    let (lit_film, lit_stats) = render::render(scene, &lit, &pass_options(seed, 1.0 - seen_share), cancel);
+    let mut image = lit_film.to_image();
+    stats.rays += lit_stats.rays;
+    stats.invalid_samples += lit_stats.invalid_samples;
+    let mut elapsed = lit_stats.elapsed;
+    metadata.push(("hslt.mlt.direct_samples".into(), lit_stats.min_spp.to_string()));
+    if seen_share > 0.0 {
+        // Emitters seen directly (two vertices): the camera ray that hits one and the emitter's points
+        // joined to the camera (s = 1, t = 1), under MIS.
+        let mut seen = chain_bdpt.clone();
+        seen.limits.max_depth = 1;
+        seen.min_path_vertices = 2;
+        seen.max_light_vertices = 1;
+        let (seen_film, seen_stats) =
+            render::render(scene, &seen, &pass_options(seed ^ SEEN_SEED, seen_share), cancel);
+        let seen_image = seen_film.to_image();
+        for (a, b) in image.data.iter_mut().zip(&seen_image.data) {
+            *a += *b;
+        }
+        stats.rays += seen_stats.rays;
+        stats.invalid_samples += seen_stats.invalid_samples;
+        elapsed += seen_stats.elapsed;
+        metadata.push(("hslt.mlt.direct_seen_samples".into(), seen_stats.min_spp.to_string()));
+    }
+    film.add_image_as_sample(&image);
+    metadata.push(("hslt.mlt.seconds_direct".into(), format!("{:.3}", elapsed.as_secs_f64())));
 }
