@@ -9,7 +9,7 @@
 use hslt::cli::load_scene;
 use hslt::integrators::{Integrator, RenderOutput, TiledRenderer};
 use hslt::metropolis::mutations::bidir::{transition_density_between, BidirectionalMutation};
-use hslt::metropolis::mutations::largestep::{LargeStep, LengthPmf};
+use hslt::metropolis::mutations::largestep::{LargeStep, StrategyPmf};
 use hslt::metropolis::{
     Chain, Failure, MltSettings, Mutation, MutationKind, MutationStats, PathContext, PathMlt, PathSeeds,
     PathState, TargetFunction, WeightedMutation,
@@ -542,8 +542,12 @@ fn large_step_proposals_are_unbiased_samples_of_the_path_integral() {
         let seeds = PathSeeds::run(&scene, &bdpt, 5, 1 << 16, &AtomicBool::new(false));
         let mut large_step = LargeStep::default();
         if seeded {
-            large_step.lengths = LengthPmf::from_histogram(&seeds.by_edges, &bdpt);
-            assert_ne!(large_step.lengths, LengthPmf::default(), "{rel}: the seeding pass has lengths");
+            large_step.strategies = StrategyPmf::from_histogram(&seeds.by_strategy, &bdpt);
+            assert_ne!(
+                large_step.strategies,
+                StrategyPmf::default(),
+                "{rel}: the seeding pass has strategies"
+            );
         }
         let rel = if seeded { rel.to_string() } else { format!("{rel} (fixed)") };
         let samples: Vec<f64> = {

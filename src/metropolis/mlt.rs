@@ -6,7 +6,7 @@
 use super::chain::{Chain, MutationStats, TargetFunction, WeightedMutation};
 use super::direct;
 use super::driver::{self, ChainRunner, RunningChain};
-use super::mutations::largestep::{self, LengthPmf};
+use super::mutations::largestep::{self, StrategyPmf};
 use super::mutations::{self, MutationKind, MutationSettings};
 use super::path_state::{PathContext, PathState};
 use super::pssmlt::{acceptance_extra, sample_cdf, PssContext, Pssmlt};
@@ -93,16 +93,17 @@ pub struct PathSeeds {
     cdf: Vec<f64>,
     pub samples: usize,
     pub b: f64,
-    /// Σ luminance of the weighted strategies by edge count (index k = vertices − 1): where along the
-    /// lengths the light lies, which the large step proposes from (`largestep::LengthPmf`).
-    pub by_edges: Vec<f64>,
+    /// Σ luminance of the weighted strategies by edge count k (= vertices − 1) and light-side vertex
+    /// count s (`by_strategy[k][s]`): which lengths carry the light and which of BDPT's strategies make
+    /// them well, which the large step proposes from (`largestep::StrategyPmf`).
+    pub by_strategy: Vec<Vec<f64>>,
     pub rays: u64,
     pub invalid: u64,
 }
 
 impl PathSeeds {
     pub fn run(scene: &Scene, bdpt: &Bdpt, seed: u64, n: usize, cancel: &AtomicBool) -> PathSeeds {
-        type Chunk = (Vec<(Candidate, f64, usize)>, u64, u64, f64);
+        type Chunk = (Vec<(Candidate, f64, (usize, usize))>, u64, u64, f64);
         let chunks: Vec<Chunk> = (0..n.div_ceil(SEED_CHUNK))
             .into_par_iter()
             .map(|chunk| {
@@ -123,7 +124,10 @@ impl PathSeeds {
                             // `Contribution::path` adds the environment vertex an s = 0 path escaped to.
                             let env = usize::from(c.s == 0 && c.endpoint.is_some());
                             let edges = (c.s + c.t + env).saturating_sub(1);
-                            out.0.push((Candidate { sample: i, contribution: j }, y, edges));
+                            // The large step reaches an environment by sampling it (s = 1), never by
+                            // an eye walk hitting it.
+                            let split = c.s.max(env);
+                            out.0.push((Candidate { sample: i, contribution: j }, y, (edges, split)));
                         }
                     }
                 }
@@ -135,7 +139,7 @@ impl PathSeeds {
             cdf: Vec::new(),
             samples: n,
             b: 0.0,
-            by_edges: Vec::new(),
+            by_strategy: Vec::new(),
             rays: 0,
             invalid: 0,
         };
@@ -143,12 +147,16 @@ impl PathSeeds {
         for (candidates, rays, invalid, _) in chunks {
             seeds.rays += rays;
             seeds.invalid += invalid;
-            for (c, y, edges) in candidates {
+            for (c, y, (edges, split)) in candidates {
                 sum += y;
-                if seeds.by_edges.len() <= edges {
-                    seeds.by_edges.resize(edges + 1, 0.0);
+                if seeds.by_strategy.len() <= edges {
+                    seeds.by_strategy.resize(edges + 1, Vec::new());
                 }
-                seeds.by_edges[edges] += y;
+                let splits = &mut seeds.by_strategy[edges];
+                if splits.len() <= split {
+                    splits.resize(split + 1, 0.0);
+                }
+                splits[split] += y;
                 seeds.candidates.push(c);
                 seeds.cdf.push(sum);
             }
@@ -276,7 +284,7 @@ impl Integrator for PathMlt {
         let n_chains = self.settings.chains.max(1).min(total_mutations.min(1 << 32) as usize);
         let chains_start = Instant::now();
         let mut mutation_settings = self.settings.mutation.clone();
-        mutation_settings.large_step_lengths = LengthPmf::from_histogram(&seeds.by_edges, &self.bdpt);
+        mutation_settings.large_step_strategies = StrategyPmf::from_histogram(&seeds.by_strategy, &self.bdpt);
         let started: Vec<_> = (0..n_chains)
             .into_par_iter()
             .map(|c| self.start_chain(scene, &seeds, &mutation_settings, seed, c))

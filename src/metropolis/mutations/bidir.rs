@@ -122,8 +122,17 @@ pub(super) fn regrowth_density(scene: &Scene, to: &[Vertex], a: usize, added: us
     if added == 0 || a + added > to.len() {
         return 0.0;
     }
+    split_densities(scene, to, a, added).iter().sum::<f64>() / added as f64
+}
+
+/// p_s(y) for every split s = 0 … `added` − 1 of the new vertices (`split_density`), for samplers that
+/// choose the split by their own pmf (the large step); empty where nothing was regrown.
+pub(super) fn split_densities(scene: &Scene, to: &[Vertex], a: usize, added: usize) -> Vec<f64> {
+    if added == 0 || a + added > to.len() {
+        return Vec::new();
+    }
     let pdfs = PathView::whole(to).dirac_pdfs(scene);
-    (0..added).map(|s| split_density(scene, to, &pdfs, a, added, s)).sum::<f64>() / added as f64
+    (0..added).map(|s| split_density(scene, to, &pdfs, a, added, s)).collect()
 }
 
 /// p_s(y): the density with which `regrow`, having chosen the split `s`, makes `to`: the product of the
@@ -295,7 +304,13 @@ pub(super) fn regrow(
     added: usize,
     rng: &mut Sampler,
 ) -> Result<Vec<Vertex>, Failure> {
-    let scene = ctx.scene;
+    check_kept_ends(ctx.scene, x, a, b, added)?;
+    let s = ((rng.next_f64() * added as f64) as usize).min(added - 1);
+    regrow_split(ctx, x, a, b, added, s, rng)
+}
+
+/// Why `x_a` and `x_b` cannot be kept ends of a regrowth of `added` edges, if they cannot.
+fn check_kept_ends(scene: &Scene, x: &[Vertex], a: usize, b: usize, added: usize) -> Result<(), Failure> {
     let k = x.len() - 1;
     let suffix_empty = b == k + 1;
     if x[a].delta || (!suffix_empty && dirac_scatter(scene, &x[b])) {
@@ -306,10 +321,30 @@ pub(super) fn regrow(
     }
     // With the emitter regenerated, s = 0 means the eye walk must hit an emitter itself: the only
     // way to build paths whose light end follows a Dirac vertex (a light seen through glass).
-    if suffix_empty && added < 2 {
+    if added == 0 || (suffix_empty && added < 2) {
         return Err(Failure::Failed("no_split"));
     }
-    let s = ((rng.next_f64() * added as f64) as usize).min(added - 1);
+    Ok(())
+}
+
+/// `regrow` with the split chosen by the caller (the large step draws it from its own pmf): `s` of the
+/// `added` new vertices grown from the light side, the rest from the eye side.
+pub(super) fn regrow_split(
+    ctx: &mut PathContext,
+    x: &[Vertex],
+    a: usize,
+    b: usize,
+    added: usize,
+    s: usize,
+    rng: &mut Sampler,
+) -> Result<Vec<Vertex>, Failure> {
+    check_kept_ends(ctx.scene, x, a, b, added)?;
+    if s >= added {
+        return Err(Failure::Failed("no_split"));
+    }
+    let scene = ctx.scene;
+    let k = x.len() - 1;
+    let suffix_empty = b == k + 1;
     let t = added - 1 - s;
     if !suffix_empty && b == k && x[k].kind == VertexKind::InfiniteLight && s >= 1 {
         return Err(Failure::Failed("unsupported"));

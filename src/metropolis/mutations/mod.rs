@@ -118,8 +118,8 @@ pub struct MutationSettings {
     pub specular_threshold: f32,
     /// HSLT's half-vector mutation: step scale, stratification, image step and walk constants.
     pub halfvector: halfvector::HalfVectorParams,
-    /// The large step's length distribution (set from the seeding pass by `PathMlt`).
-    pub large_step_lengths: largestep::LengthPmf,
+    /// The large step's distribution of lengths and splits (set from the seeding pass by `PathMlt`).
+    pub large_step_strategies: largestep::StrategyPmf,
 }
 
 impl Default for MutationSettings {
@@ -128,7 +128,7 @@ impl Default for MutationSettings {
             lambda: 50.0,
             specular_threshold: 0.1,
             halfvector: halfvector::HalfVectorParams::default(),
-            large_step_lengths: largestep::LengthPmf::default(),
+            large_step_strategies: largestep::StrategyPmf::default(),
         }
     }
 }
@@ -147,7 +147,7 @@ pub fn make<'a>(
         MutationKind::MultiChain => Some(Box::new(multichain::MultiChainPerturbation)),
         MutationKind::HalfVector => Some(Box::new(halfvector::HalfVectorMutation::new(settings.halfvector))),
         MutationKind::LargeStep => {
-            Some(Box::new(largestep::LargeStep { lengths: settings.large_step_lengths.clone() }))
+            Some(Box::new(largestep::LargeStep { strategies: settings.large_step_strategies.clone() }))
         }
         MutationKind::HalfVectorLens => {
             Some(Box::new(hvlens::HalfVectorLensPerturbation { threshold: settings.specular_threshold }))
