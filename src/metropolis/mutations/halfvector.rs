@@ -142,6 +142,19 @@ pub fn walk_from(
     }
 }
 
+/// The walk gives up after this many Newton iterations ([C13]: 15; the shared default 20). A walk that
+/// converges does so in 2-3 (rings scene: 2.5 on average, 96% of converged walks within 9), while one
+/// that runs long almost never does, and it is the failed walks that cost: each failed iteration
+/// traces up to three corrector passes. On rings (128x96, `--integrator hslt --time 20 --seed 1`, run
+/// back to back) 20 iterations and `MIN_STEP` 1e-5 made 695 k proposals, 240 k accepted; 10 and 1e-2
+/// made 786 k, 269 k accepted (+13%, +12%), and the render 13% more mutations of every kind.
+pub const MAX_ITERATIONS: usize = 10;
+
+/// The walk gives up once its step has shrunk below this fraction of the Newton step, i.e. after three
+/// iterations (each trying 1, 1/2 and 1/4 of the step, then cutting it by 8) that all failed to lower
+/// the error: a predictor that wrong 1/64 of the way out has left the surface's neighbourhood.
+pub const MIN_STEP: f64 = 1e-2;
+
 impl Default for HalfVectorParams {
     fn default() -> HalfVectorParams {
         HalfVectorParams {
@@ -150,7 +163,12 @@ impl Default for HalfVectorParams {
             image_step: 0.02,
             // Per-triangle tangent frames leave residuals of ~1e-4 in h on tessellated meshes: asking
             // for less makes honest walks fail to converge.
-            walk: WalkSettings { tolerance: 1e-4, ..WalkSettings::default() },
+            walk: WalkSettings {
+                tolerance: 1e-4,
+                max_iterations: MAX_ITERATIONS,
+                min_step: MIN_STEP,
+                ..WalkSettings::default()
+            },
             direction: TraceDirection::Camera,
         }
     }
