@@ -306,7 +306,7 @@ pub(super) fn regrow(
 ) -> Result<Vec<Vertex>, Failure> {
     check_kept_ends(ctx.scene, x, a, b, added)?;
     let s = ((rng.next_f64() * added as f64) as usize).min(added - 1);
-    regrow_split(ctx, x, a, b, added, s, rng)
+    grow_split(ctx, x, a, b, added, s, rng)
 }
 
 /// Why `x_a` and `x_b` cannot be kept ends of a regrowth of `added` edges, if they cannot.
@@ -342,6 +342,19 @@ pub(super) fn regrow_split(
     if s >= added {
         return Err(Failure::Failed("no_split"));
     }
+    grow_split(ctx, x, a, b, added, s, rng)
+}
+
+/// The regrowth itself, on kept ends and a split already checked (`check_kept_ends`, s < `added`).
+fn grow_split(
+    ctx: &mut PathContext,
+    x: &[Vertex],
+    a: usize,
+    b: usize,
+    added: usize,
+    s: usize,
+    rng: &mut Sampler,
+) -> Result<Vec<Vertex>, Failure> {
     let scene = ctx.scene;
     let k = x.len() - 1;
     let suffix_empty = b == k + 1;

@@ -117,7 +117,7 @@ impl StrategyPmf {
 /// The `MutationStats::sums` key of Σ luminance f(y) / p(y) over the proposals.
 pub const B_ESTIMATE: &str = "b_estimate";
 
-/// The large step with its length distribution.
+/// The large step with its distribution of lengths and splits.
 #[derive(Clone, Debug, Default)]
 pub struct LargeStep {
     pub strategies: StrategyPmf,
@@ -135,7 +135,7 @@ impl LargeStep {
         split_densities(scene, path, 0, path.len())
             .iter()
             .enumerate()
-            .map(|(s, p_s)| if *p_s > 0.0 { self.strategies.pmf(bdpt, k, s) * p_s } else { 0.0 })
+            .map(|(s, p_s)| self.strategies.pmf(bdpt, k, s) * p_s)
             .sum()
     }
 }
