@@ -39,8 +39,8 @@ fn render(dir: &Path, name: &str, spp: &str, seed: &str, res: (&str, &str)) -> S
     out
 }
 
-/// The rows of the Markdown table: (image, integrator, seed, spp, rel MSE, block rel MSE).
-fn rows(stdout: &str) -> Vec<(String, String, String, String, f64, f64)> {
+/// The rows of the Markdown table: (image, integrator, seed, spp, rel MSE, block rel MSE, worst-1% share).
+fn rows(stdout: &str) -> Vec<(String, String, String, String, f64, f64, f64)> {
     stdout
         .lines()
         .filter(|l| l.starts_with("| ") && !l.starts_with("| image"))
@@ -53,6 +53,7 @@ fn rows(stdout: &str) -> Vec<(String, String, String, String, f64, f64)> {
                 f[3].to_string(),
                 f[4].parse().unwrap(),
                 f[5].parse().unwrap(),
+                f[6].parse().unwrap(),
             )
         })
         .collect()
@@ -79,6 +80,8 @@ fn error_ranks_sample_counts_and_reports_the_references_own_noise() {
     // 16× the samples: about 16× less error; a factor 4 leaves room for the references' own noise.
     assert!(few_row.4 > 4.0 * many_row.4, "4 spp {} against 64 spp {}", few_row.4, many_row.4);
     assert!(few_row.5 < few_row.4, "block means average noise away: {} ≥ {}", few_row.5, few_row.4);
+    // 192 pixels, so the worst 1% is two of them: at least their even share, well below all of it.
+    assert!((2.0 / 192.0..0.9).contains(&few_row.6), "worst-1% share {}", few_row.6);
     // One of the two references against their mean: a quarter of their mutual error (up to the
     // relative MSE's denominators, the mean's square against the other reference's).
     let noise_line = stdout.lines().find(|l| l.starts_with("reference: mean of")).expect("noise line");
@@ -92,7 +95,7 @@ fn error_ranks_sample_counts_and_reports_the_references_own_noise() {
 
     let same = hslt(&["error", &few, "--reference", &few]);
     let same_rows = rows(&String::from_utf8_lossy(&same.stdout));
-    assert_eq!((same_rows[0].4, same_rows[0].5), (0.0, 0.0));
+    assert_eq!((same_rows[0].4, same_rows[0].5, same_rows[0].6), (0.0, 0.0, 0.0));
 
     let other_size = render(&dir, "small.exr", "4", "1", ("8", "6"));
     let bad = hslt(&["error", &other_size, "--reference", &ref_a]);

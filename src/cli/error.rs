@@ -39,6 +39,19 @@ fn meta_value(path: &Path, key: &str) -> String {
         .unwrap_or_else(|| "-".into())
 }
 
+/// The share of the summed per-pixel relative squared error that the worst 1% of pixels carry: near
+/// 0.01 the error is spread evenly (noise everywhere), near 1 it sits in a few highlights or fireflies.
+fn worst_percent_share(map: &[f64]) -> f64 {
+    let total: f64 = map.iter().sum();
+    if !(total > 0.0) {
+        return 0.0;
+    }
+    let mut sorted = map.to_vec();
+    sorted.sort_unstable_by(|a, b| b.total_cmp(a));
+    let worst = map.len().div_ceil(100);
+    sorted[..worst].iter().sum::<f64>() / total
+}
+
 fn mean_luminance(img: &ImageBuf) -> f64 {
     let colour = if img.channels >= 3 { 3 } else { 1 };
     let pixels = img.width * img.height;
@@ -100,25 +113,47 @@ pub fn run(args: ErrorArgs) -> anyhow::Result<i32> {
     println!("reference mean {:.5}", mean_luminance(&reference));
     let block_header = format!("rel MSE {0}×{0}", args.block);
     println!(
-        "| image | integrator | seed | spp | rel MSE | {block_header} | RMSE | MAE | mean |\n|---|---|---|---|---|---|---|---|---|"
+        "| image | integrator | seed | spp | rel MSE | {block_header} | worst 1% | RMSE | MAE | mean |\n|---|---|---|---|---|---|---|---|---|---|"
     );
     for path in &args.images {
         let img = read(path)?;
         let ErrorMetrics { rel_mse, rmse, mae } = metrics::compute(&img, &reference, args.epsilon)
             .with_context(|| format!("{} against the reference", path.display()))?;
         let blocks = metrics::compute(&block_means(&img, args.block), &reference_blocks, args.epsilon)?;
+        let worst = worst_percent_share(&metrics::relative_error_map(&img, &reference, args.epsilon)?);
         println!(
-            "| {} | {} | {} | {} | {:.3e} | {:.2e} | {:.4e} | {:.4e} | {:.5} |",
+            "| {} | {} | {} | {} | {:.3e} | {:.2e} | {:.2} | {:.4e} | {:.4e} | {:.5} |",
             path.display(),
             meta_value(path, "hslt.integrator"),
             meta_value(path, "hslt.seed"),
             meta_value(path, "hslt.spp"),
             rel_mse,
             blocks.rel_mse,
+            worst,
             rmse,
             mae,
             mean_luminance(&img)
         );
     }
     Ok(0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::worst_percent_share;
+
+    #[test]
+    fn worst_percent_share_tells_spread_error_from_outliers() {
+        let even = vec![2.0; 1000];
+        assert!((worst_percent_share(&even) - 0.01).abs() < 1e-12);
+        let mut one_firefly = vec![1e-3; 1000];
+        one_firefly[417] = 100.0;
+        // The worst ten hold the firefly and nine others: 100.009 of 100.999.
+        assert!((worst_percent_share(&one_firefly) - 100.009 / 100.999).abs() < 1e-12);
+        // 150 pixels: the worst 1% is rounded up to two pixels.
+        let mut ramp: Vec<f64> = (1..=150).map(f64::from).collect();
+        ramp.reverse();
+        assert!((worst_percent_share(&ramp) - (150.0 + 149.0) / (150.0 * 151.0 / 2.0)).abs() < 1e-12);
+        assert_eq!(worst_percent_share(&[0.0; 10]), 0.0);
+    }
 }
