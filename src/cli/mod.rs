@@ -48,8 +48,8 @@ pub enum Command {
     /// Render a long, checkpointed reference image (EXR) that --resume continues.
     Reference(report::ReferenceArgs),
     /// Error of finished images against a reference (one image, or the mean of two independent
-    /// renders): relative MSE per pixel and on block means, RMSE, MAE, with each image's integrator,
-    /// seed and samples from its metadata, as a Markdown table.
+    /// renders): relative MSE per pixel and on block means, the worst 1% of pixels' share of it, RMSE,
+    /// MAE, with each image's integrator, seed and samples from its metadata, as a Markdown table.
     Error(error::ErrorArgs),
     /// The HSLT supplement's half-vector plots (Fig. 4) for a path through one pixel.
     ///
