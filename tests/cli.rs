@@ -98,6 +98,11 @@ fn undefined_parameter_and_bad_cli_values_are_errors() {
         &["render", f, "-o", "x.exr", "--integrator", "pssmlt", "--time", "1", "--direct-share", "1.5"],
         &["--direct-share"],
     );
+    expect_error(&["render", f, "-o", "x.exr", "--min-depth", "0"], &["--min-depth"]);
+    expect_error(
+        &["render", f, "-o", "x.exr", "--min-depth", "3", "--max-depth", "2"],
+        &["--min-depth", "(2)"],
+    );
 }
 
 #[test]

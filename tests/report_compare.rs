@@ -186,7 +186,8 @@ fn compare_refuses_bad_arguments_before_rendering() {
         v.extend(extra);
         v.into_iter().map(String::from).collect()
     };
-    let cases: [(&[&str], &[&str]); 4] = [
+    let cases: [(&[&str], &[&str]); 5] = [
+        (&["--integrators", "pt", "--time", "1", "--min-depth", "0"], &["--min-depth"]),
         (&["--integrators", "pt", "--time", "1"], &["small.exr", "16x16", "32x24"]),
         (&["--integrators", "pt,nonsense", "--time", "1"], &["nonsense"]),
         (&["--integrators", "pt,pt", "--time", "1"], &["twice"]),
@@ -202,5 +203,33 @@ fn compare_refuses_bad_arguments_before_rendering() {
         }
     }
     assert!(!out_dir.join("error.csv").exists(), "a refused comparison wrote a report");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn compare_from_a_min_depth_warns_when_the_reference_holds_other_light() {
+    let dir = tmp_dir("min-depth");
+    let scene = cornell();
+    let reference = dir.join("indirect.exr");
+    let mut args = vec!["render", &scene, "-q", "--integrator", "pt", "--spp", "8", "--min-depth", "3"];
+    args.extend(SMALL);
+    args.extend(["-o", reference.to_str().unwrap()]);
+    assert!(run(&args).status.success());
+    let compare = |min_depth: &str, out: &Path| {
+        let mut args = vec!["compare", &scene, "-q", "--integrators", "pt", "--time", "0.3"];
+        args.extend(SMALL);
+        args.extend(["--seed", "5", "--snapshots", "2", "--min-depth", min_depth]);
+        args.extend(["--reference", reference.to_str().unwrap(), "--out", out.to_str().unwrap()]);
+        let out = run(&args);
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        String::from_utf8_lossy(&out.stderr).into_owned()
+    };
+    let same = dir.join("same");
+    let err = compare("3", &same);
+    assert!(!err.contains("--min-depth"), "{err}");
+    let meta = hslt::image::read_exr_metadata(&same.join("pt.exr")).unwrap();
+    assert!(meta.iter().any(|(k, v)| k == "hslt.min_depth" && v == "3"), "{meta:?}");
+    let err = compare("1", &dir.join("other"));
+    assert!(err.contains("warning") && err.contains("--min-depth 3"), "{err}");
     std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -220,6 +220,11 @@ pub struct RenderArgs {
     /// Longest path in segments, Mitsuba's meaning (-1 = unbounded); overrides the scene.
     #[arg(long, allow_negative_numbers = true)]
     pub max_depth: Option<i32>,
+    /// Shortest path in segments, counted as --max-depth counts them: 2 hides the emitters seen
+    /// directly, 3 renders indirect light only (what the Metropolis chains render beside their direct
+    /// pass, which then does not run, so an equal-time comparison at 3 measures the chains alone).
+    #[arg(long, value_name = "N", default_value_t = 1)]
+    pub min_depth: i32,
     /// Ray-query backend.
     #[arg(long, default_value = "embree")]
     pub accel: String,
@@ -336,7 +341,11 @@ fn run_render(args: RenderArgs) -> anyhow::Result<i32> {
     if limits.max_depth == 0 || limits.max_depth < -1 {
         bail!("--max-depth must be -1 (unbounded) or at least 1");
     }
+    if args.min_depth < 1 || (limits.max_depth > 0 && args.min_depth > limits.max_depth) {
+        bail!("--min-depth must be at least 1 and at most the maximum depth ({})", limits.max_depth);
+    }
     let mut settings = integrators::IntegratorSettings::new(limits, scene.integrator.hide_emitters);
+    settings.min_depth = args.min_depth;
     settings.bdpt_strategies = args.bdpt_strategies;
     settings.mis = if args.mis == "balance" { MisHeuristic::Balance } else { MisHeuristic::Power };
     if args.bdpt_strategies.is_some() {
@@ -419,6 +428,9 @@ fn run_render(args: RenderArgs) -> anyhow::Result<i32> {
     let stats = output.stats;
     let image = output.film.to_image();
     let mut meta = metadata(&scene, kind.name(), &options, limits, threads, &stats);
+    if args.min_depth > 1 {
+        meta.push(("hslt.min_depth".into(), args.min_depth.to_string()));
+    }
     meta.extend(output.metadata);
     let layers = output.film.layer_images();
     for out in &args.output {

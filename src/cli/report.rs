@@ -54,6 +54,10 @@ pub struct CompareArgs {
     /// HSLT: the end the half-vector mutation's walk traces from (see `render --hslt-direction`).
     #[arg(long, value_name = "DIR", default_value = "camera", value_parser = ["camera", "light", "rule"])]
     pub hslt_direction: String,
+    /// Shortest path rendered, in segments (see `render --min-depth`): 3 compares the Metropolis
+    /// methods' chains alone, on indirect light, against a reference rendered with the same value.
+    #[arg(long, value_name = "N", default_value_t = 1)]
+    pub min_depth: i32,
     /// Ray-query backend.
     #[arg(long, default_value = "embree")]
     pub accel: String,
@@ -154,6 +158,9 @@ pub fn run_compare(args: CompareArgs) -> anyhow::Result<i32> {
         bail!("--epsilon must be a positive number");
     }
     let metric = Metric::parse(&args.metric).map_err(anyhow::Error::msg)?;
+    if args.min_depth < 1 {
+        bail!("--min-depth must be at least 1");
+    }
     // Every name is checked before the first long render starts.
     let mut kinds: Vec<(String, IntegratorKind)> = Vec::new();
     for name in &args.integrators {
@@ -175,6 +182,15 @@ pub fn run_compare(args: CompareArgs) -> anyhow::Result<i32> {
                 args.seed
             );
         }
+        let reference_min_depth = lookup(&meta, "hslt.min_depth").unwrap_or("1");
+        if reference_min_depth != args.min_depth.to_string() {
+            eprintln!(
+                "warning: {} was rendered with --min-depth {reference_min_depth}, this comparison uses {}: \
+                 the images hold different light",
+                args.reference.display(),
+                args.min_depth
+            );
+        }
     }
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("cannot create the output folder {}", args.out.display()))?;
@@ -184,7 +200,11 @@ pub fn run_compare(args: CompareArgs) -> anyhow::Result<i32> {
     let total = Duration::from_secs_f64(args.time);
     let times = report::log_spaced_times(total, args.snapshots);
     let limits = depth_limits(&scene);
+    if limits.max_depth > 0 && args.min_depth > limits.max_depth {
+        bail!("--min-depth {} is above the scene's max_depth ({})", args.min_depth, limits.max_depth);
+    }
     let mut settings = integrators::IntegratorSettings::new(limits, scene.integrator.hide_emitters);
+    settings.min_depth = args.min_depth;
     settings.mutation.halfvector.direction = parse_hslt_direction(&args.hslt_direction)?;
     let reference = Arc::new(reference);
 
@@ -238,6 +258,9 @@ pub fn run_compare(args: CompareArgs) -> anyhow::Result<i32> {
         });
         rows.extend(own_rows);
         let mut meta = metadata(&scene, name, &options, limits, threads, &output.stats);
+        if args.min_depth > 1 {
+            meta.push(("hslt.min_depth".into(), args.min_depth.to_string()));
+        }
         meta.extend(output.metadata);
         let exr = args.out.join(format!("{}.exr", report::file_stem(name)));
         write_image(&exr, &image, &meta)?;

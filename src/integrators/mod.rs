@@ -216,6 +216,11 @@ pub const HALF_VECTOR_WEIGHT: f64 = 0.1;
 pub struct IntegratorSettings {
     pub limits: DepthLimits,
     pub hide_emitters: bool,
+    /// Shortest path rendered, in segments as `max_depth` counts them: 1 renders everything, 2 leaves
+    /// out the emitters seen directly (`hide_emitters`), 3 renders indirect light only, which is what
+    /// the Metropolis methods' chains render beside their direct pass (`metropolis::direct`), so an
+    /// equal-time comparison at 3 measures the chains alone. Tungsten calls it `min_bounces`.
+    pub min_depth: i32,
     /// BDPT: write per-strategy layers for path depths up to this.
     pub bdpt_strategies: Option<u32>,
     /// BDPT: MIS heuristic.
@@ -236,6 +241,7 @@ impl IntegratorSettings {
         IntegratorSettings {
             limits,
             hide_emitters,
+            min_depth: 1,
             bdpt_strategies: None,
             mis: crate::path::MisHeuristic::Power,
             pssmlt: crate::metropolis::PssmltSettings::default(),
@@ -253,32 +259,46 @@ pub fn make(kind: IntegratorKind, limits: DepthLimits, hide_emitters: bool) -> B
 
 /// Builds an integrator.
 pub fn make_with(kind: IntegratorKind, settings: &IntegratorSettings) -> Box<dyn Integrator> {
-    let (limits, hide_emitters) = (settings.limits, settings.hide_emitters);
+    let limits = settings.limits;
+    let min_depth = settings.min_depth.max(1);
+    // A path of one segment is an emitter seen directly: leaving those out is what hide_emitters does.
+    let hide_emitters = settings.hide_emitters || min_depth >= 2;
+    let bdpt = || {
+        let mut bdpt = Bdpt::new(limits, hide_emitters);
+        bdpt.heuristic = settings.mis;
+        bdpt.min_path_vertices = min_depth as usize + 1;
+        bdpt
+    };
+    // Nothing is left for a separate direct pass once the paths it renders (up to two segments,
+    // `direct::CHAIN_MIN_VERTICES`) are left out: the chains get the whole time.
+    let direct = if min_depth as usize + 1 >= crate::metropolis::direct::CHAIN_MIN_VERTICES {
+        crate::metropolis::direct::DirectPass::Off
+    } else {
+        settings.pssmlt.direct
+    };
     match kind {
-        IntegratorKind::Path => Box::new(TiledRenderer(Box::new(PathTracer { limits, hide_emitters }))),
+        IntegratorKind::Path => {
+            Box::new(TiledRenderer(Box::new(PathTracer { limits, hide_emitters, min_depth })))
+        }
         IntegratorKind::Bdpt => {
-            let mut bdpt = Bdpt::new(limits, hide_emitters);
+            let mut bdpt = bdpt();
             bdpt.strategy_layers = settings.bdpt_strategies;
-            bdpt.heuristic = settings.mis;
             Box::new(TiledRenderer(Box::new(bdpt)))
         }
         IntegratorKind::Pssmlt => {
-            let mut bdpt = Bdpt::new(limits, hide_emitters);
-            bdpt.heuristic = settings.mis;
-            Box::new(crate::metropolis::Pssmlt::new(bdpt, settings.pssmlt.clone()))
+            let pssmlt = crate::metropolis::PssmltSettings { direct, ..settings.pssmlt.clone() };
+            Box::new(crate::metropolis::Pssmlt::new(bdpt(), pssmlt))
         }
         IntegratorKind::Mlt | IntegratorKind::Memlt | IntegratorKind::Hslt | IntegratorKind::HsltMlt => {
-            let mut bdpt = Bdpt::new(limits, hide_emitters);
-            bdpt.heuristic = settings.mis;
             let mut mlt = MltSettings::for_technique(
                 settings.mutations.clone().unwrap_or_else(|| kind.default_mutations()),
             );
             mlt.seed_paths = settings.pssmlt.seed_paths;
-            mlt.direct = settings.pssmlt.direct;
+            mlt.direct = direct;
             mlt.chains = settings.path_chains.unwrap_or(crate::metropolis::mlt::DEFAULT_PATH_CHAINS);
             mlt.target = settings.pssmlt.target;
             mlt.mutation = settings.mutation.clone();
-            Box::new(PathMlt::new(kind.name(), bdpt, mlt))
+            Box::new(PathMlt::new(kind.name(), bdpt(), mlt))
         }
     }
 }

@@ -12,6 +12,8 @@ use crate::spectrum::Spectrum;
 pub struct PathTracer {
     pub limits: DepthLimits,
     pub hide_emitters: bool,
+    /// Shortest path kept, in segments (1 keeps everything; 3 keeps indirect light only).
+    pub min_depth: i32,
 }
 
 /// What the previous vertex needs to weight emission found by BSDF sampling.
@@ -24,6 +26,10 @@ struct PrevVertex {
 impl PathTracer {
     fn allows(&self, segments: i32) -> bool {
         self.limits.max_depth < 0 || segments <= self.limits.max_depth
+    }
+
+    fn keeps(&self, segments: i32) -> bool {
+        segments >= self.min_depth
     }
 
     /// MIS weight of emission reached by BSDF sampling from `prev`; `light_pdf` gives the density with
@@ -97,7 +103,8 @@ impl PixelIntegrator for PathTracer {
             counters.rays += 1;
             segments += 1;
             let Some(si) = scene.intersect(&ray) else {
-                for &li in &scene.infinite_lights {
+                let infinite = if self.keeps(segments) { &scene.infinite_lights[..] } else { &[] };
+                for &li in infinite {
                     let light = &scene.lights[li];
                     let le = light.eval_infinite(ray.dir);
                     let weight = self.emission_weight(&prev, |_| {
@@ -108,7 +115,7 @@ impl PixelIntegrator for PathTracer {
                 break;
             };
 
-            if let Some((li, area)) = scene.area_light(si.shape) {
+            if let Some((li, area)) = scene.area_light(si.shape).filter(|_| self.keeps(segments)) {
                 let sp = area.surface_point(&si);
                 let le = area.emitted(&sp, si.wi);
                 if le != Spectrum::ZERO {
@@ -127,7 +134,7 @@ impl PixelIntegrator for PathTracer {
             let ctx = BsdfContext { mode: TransportMode::Radiance, uv: si.uv };
             let wi_local = si.frame.to_local(si.wi);
 
-            if bsdf.lobes().has_smooth() && !scene.light_selector.is_empty() {
+            if bsdf.lobes().has_smooth() && !scene.light_selector.is_empty() && self.keeps(segments + 1) {
                 radiance += throughput * self.direct_light(scene, &si, bsdf, wi_local, sampler, counters);
             }
 

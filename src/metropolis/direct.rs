@@ -144,7 +144,11 @@ pub fn render_into(
         first_sample: options.first_sample.saturating_mul(samples.unwrap_or(1 << 16)),
     };
     // One-bounce light (three vertices): the path tracer, emitters seen directly left out.
-    let lit = PathTracer { limits: DepthLimits { max_depth, ..chain_bdpt.limits }, hide_emitters: true };
+    let lit = PathTracer {
+        limits: DepthLimits { max_depth, ..chain_bdpt.limits },
+        hide_emitters: true,
+        min_depth: 1,
+    };
     let seen_share = if chain_bdpt.hide_emitters { 0.0 } else { SEEN_SHARE };
     let (lit_film, lit_stats) = render::render(scene, &lit, &pass_options(seed, 1.0 - seen_share), cancel);
     let mut image = lit_film.to_image();
