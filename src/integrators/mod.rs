@@ -192,21 +192,34 @@ impl IntegratorKind {
     /// `DirectPass::for_path_space`). The HSLT mixtures add the half-vector lens perturbation and
     /// give the half-vector mutation a tenth of the proposals: one costs about as much time as 50
     /// lens perturbations (jewelry's rings, 2 threads), so at weight 1 it took 90% of the time and
-    /// the rings' relative MSE was 2.2× that at 0.1 (docs/benchmarks.md, session 8).
+    /// the rings' relative MSE was 2.2× that at 0.1 (docs/benchmarks.md, session 8). The large step
+    /// makes `LARGE_STEP_SHARE` of the proposals.
     pub fn default_mutations(self) -> Vec<(MutationKind, f64)> {
         use MutationKind::*;
         let veach = [(Bidirectional, 1.0), (Lens, 1.0), (Caustic, 1.0), (MultiChain, 1.0)];
-        let large = (LargeStep, 1.0);
         let half_vector = [(HalfVector, HALF_VECTOR_WEIGHT), (HalfVectorLens, 1.0)];
-        match self {
-            IntegratorKind::Path | IntegratorKind::Bdpt | IntegratorKind::Pssmlt => Vec::new(),
-            IntegratorKind::Mlt => [&veach[..], &[large]].concat(),
-            IntegratorKind::Memlt => [&veach[..], &[(Manifold, 1.0), large]].concat(),
-            IntegratorKind::Hslt => [&[(Bidirectional, 1.0)], &half_vector[..], &[large]].concat(),
-            IntegratorKind::HsltMlt => [&veach[..], &half_vector[..], &[large]].concat(),
-        }
+        let mut mixture = match self {
+            IntegratorKind::Path | IntegratorKind::Bdpt | IntegratorKind::Pssmlt => return Vec::new(),
+            IntegratorKind::Mlt => veach.to_vec(),
+            IntegratorKind::Memlt => [&veach[..], &[(Manifold, 1.0)]].concat(),
+            IntegratorKind::Hslt => [&[(Bidirectional, 1.0)], &half_vector[..]].concat(),
+            IntegratorKind::HsltMlt => [&veach[..], &half_vector[..]].concat(),
+        };
+        let others: f64 = mixture.iter().map(|(_, w)| w).sum();
+        // Rounded so the metadata's mixture reads 5.1, not 5.1000000000000005.
+        let large = (others * LARGE_STEP_SHARE / (1.0 - LARGE_STEP_SHARE) * 1e6).round() / 1e6;
+        mixture.push((LargeStep, large));
+        mixture
     }
 }
+
+/// The share of the default path-space mixtures' proposals that are large steps. An accepted large
+/// step is a chain's only jump across the image and between families of paths, and only about 0.45%
+/// of them are accepted on the rings scene, so at weight 1 (a sixth of HSLT+MLT's proposals) a chain
+/// (of 128) made about 700 such jumps in 60 s where a PSSMLT chain (of 64) made 5 000, and the
+/// chains' image had 3–5× PSSMLT's error on 8×8 blocks. Over half of the proposals lowered
+/// HSLT+MLT's relative MSE on the rings' indirect light by a sixth (docs/benchmarks.md, session 13).
+pub const LARGE_STEP_SHARE: f64 = 0.5;
 
 /// The half-vector mutation's weight in the default HSLT mixtures (the others' weights are 1).
 pub const HALF_VECTOR_WEIGHT: f64 = 0.1;
@@ -299,6 +312,32 @@ pub fn make_with(kind: IntegratorKind, settings: &IntegratorSettings) -> Box<dyn
             mlt.target = settings.pssmlt.target;
             mlt.mutation = settings.mutation.clone();
             Box::new(PathMlt::new(kind.name(), bdpt(), mlt))
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn default_mixtures_give_the_large_step_its_share_and_read_back_from_their_metadata() {
+        for kind in IntegratorKind::ALL.into_iter().filter(|k| k.is_path_space()) {
+            let mixture = kind.default_mutations();
+            let total: f64 = mixture.iter().map(|(_, w)| w).sum();
+            let large: f64 =
+                mixture.iter().filter(|(m, _)| *m == MutationKind::LargeStep).map(|(_, w)| w).sum();
+            assert!(
+                (large / total - LARGE_STEP_SHARE).abs() < 1e-6,
+                "{}: large-step share {}",
+                kind.name(),
+                large / total
+            );
+            // The render's `hslt.mlt.mutation_set` metadata prints the mixture as --mutations reads it.
+            let printed: Vec<String> = mixture.iter().map(|(m, w)| format!("{}:{w}", m.name())).collect();
+            let printed = printed.join(",");
+            assert!(!printed.contains("0000"), "{}: {printed}", kind.name());
+            assert_eq!(MutationKind::parse_mixture(&printed).unwrap(), mixture, "{}", kind.name());
         }
     }
 }
