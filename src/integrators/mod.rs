@@ -217,8 +217,9 @@ impl IntegratorKind {
 /// step is a chain's only jump across the image and between families of paths, and only about 0.45%
 /// of them are accepted on the rings scene, so at weight 1 (a sixth of HSLT+MLT's proposals) a chain
 /// (of 128) made about 700 such jumps in 60 s where a PSSMLT chain (of 64) made 5 000, and the
-/// chains' image had 3–5× PSSMLT's error on 8×8 blocks. Over half of the proposals lowered
-/// HSLT+MLT's relative MSE on the rings' indirect light by a sixth (docs/benchmarks.md, session 13).
+/// chains' image had 3–5× PSSMLT's error on 8×8 blocks. Half of the proposals lowered HSLT+MLT's
+/// relative MSE on the rings' indirect light by a fifth, 1.61e-4 to 1.25e-4 (37%: 1.41e-4, 70%:
+/// 1.45e-4), and did no harm on jewelry (docs/benchmarks.md, session 13).
 pub const LARGE_STEP_SHARE: f64 = 0.5;
 
 /// The half-vector mutation's weight in the default HSLT mixtures (the others' weights are 1).
