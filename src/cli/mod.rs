@@ -178,14 +178,15 @@ pub struct RenderArgs {
     pub chains: Option<usize>,
     /// Path-space MLT (mlt, memlt, hslt, hslt+mlt): the mutation mixture with selection weights, e.g.
     /// bidir:1,lens:1,caustic:1,multichain:1 (known: bidir, lens, caustic, multichain, manifold, hslt,
-    /// largestep, hvlens).
+    /// largestep, hvlens, hvcaustic).
     #[arg(long, value_name = "LIST")]
     pub mutations: Option<String>,
     /// MEMLT: manifold perturbation size λ (larger: smaller steps).
     #[arg(long, value_name = "L", default_value_t = 50.0)]
     pub lambda: f64,
-    /// MEMLT: glossy vertices with a roughness α below this are held at their half vector like
-    /// specular ones by the manifold perturbation (0 treats every glossy vertex as diffuse).
+    /// MEMLT, HSLT: glossy vertices with a roughness α below this are held at their half vector like
+    /// specular ones by the manifold perturbation and the half-vector lens and caustic perturbations
+    /// (0 treats every glossy vertex as diffuse).
     #[arg(long, value_name = "ALPHA", default_value_t = 0.1)]
     pub specular_threshold: f32,
     /// HSLT: the end the half-vector mutation's Newton walk traces from: camera, light, or rule (the

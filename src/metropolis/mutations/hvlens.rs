@@ -17,83 +17,22 @@
 //! times |cos θ_{j+1}| / d². The frame's own rotation along the surface enters only the blocks below
 //! the diagonal, which do not change the determinant. T(y→x)/T(x→y) is D(x)/D(y) with D that product.
 
-use super::perturb::{camera_chain_density, join_camera_chain, primary_ray, ray_from};
+pub use super::perturb::is_held;
+use super::perturb::{
+    camera_chain_density, held_jacobian_product, join_camera_chain, primary_ray, trace_held_chain,
+};
 use crate::bsdf::TransportMode;
-use crate::geometry::{Vec2, Vec3};
+use crate::geometry::Vec2;
 use crate::metropolis::chain::{Failure, Mutation, MutationStats, Proposal};
 use crate::metropolis::path_state::{PathContext, PathState};
-use crate::path::{ScatterClass, Vertex, VertexKind};
+use crate::path::{Vertex, VertexKind};
 use crate::sampling::Sampler;
 use crate::scene::Scene;
-use crate::spectrum::Spectrum;
-use glam::DVec3;
 
 /// The half-vector lens perturbation; `threshold` is the roughness below which a glossy vertex is held.
 #[derive(Clone, Copy, Debug)]
 pub struct HalfVectorLensPerturbation {
     pub threshold: f32,
-}
-
-/// A non-Dirac surface vertex glossy enough to be carried at its half vector.
-pub fn is_held(v: &Vertex, threshold: f32) -> bool {
-    v.kind == VertexKind::Surface
-        && !v.delta
-        && matches!(v.class, ScatterClass::Glossy { alpha } if alpha < threshold)
-}
-
-/// The relative index η_o/η_i that forms H = ω_i + η ω_o at `v`: 1 for reflection, the BSDF's ratio for
-/// transmission, inverted when ω_i arrives from inside (as `manifold::constraint` does).
-fn relative_eta(scene: &Scene, v: &Vertex, wi: DVec3, reflect: bool) -> f64 {
-    if reflect {
-        return 1.0;
-    }
-    let eta = v.bsdf(scene).map_or(1.0, |b| b.eta() as f64);
-    if v.ng.as_dvec3().dot(wi) > 0.0 {
-        eta
-    } else {
-        1.0 / eta
-    }
-}
-
-/// The unit (generalised) half vector of `v` between ω_i and ω_o, on the side of the shading normal,
-/// with dω_h/dω_o; `None` where ω_i = −η ω_o leaves it undefined.
-fn half_vector(scene: &Scene, v: &Vertex, wi: Vec3, wo: Vec3) -> Option<(DVec3, f64)> {
-    let (wi, wo) = (wi.as_dvec3(), wo.as_dvec3());
-    let reflect = v.reflects(wi.as_vec3(), wo.as_vec3());
-    let eta = relative_eta(scene, v, wi, reflect);
-    let raw = wi + wo * eta;
-    let len2 = raw.length_squared();
-    if !(len2 > 1e-12 * (1.0 + eta) * (1.0 + eta)) {
-        return None;
-    }
-    let mut h = raw / len2.sqrt();
-    if h.dot(v.frame.n.as_dvec3()) < 0.0 {
-        h = -h;
-    }
-    let jacobian = eta * eta * wo.dot(h).abs() / len2;
-    Some((h, jacobian))
-}
-
-/// The direction leaving `v` whose half vector with `wi` is `h` on the `reflect` side, if there is one.
-fn direction_for_half_vector(scene: &Scene, v: &Vertex, wi: Vec3, h: DVec3, reflect: bool) -> Option<Vec3> {
-    let wi = wi.as_dvec3();
-    let h = if wi.dot(h) < 0.0 { -h } else { h };
-    let cos_i = wi.dot(h);
-    let wo = if reflect {
-        h * (2.0 * cos_i) - wi
-    } else {
-        let eta = relative_eta(scene, v, wi, false);
-        let sin2_t = (1.0 - cos_i * cos_i).max(0.0) / (eta * eta);
-        if sin2_t >= 1.0 {
-            return None;
-        }
-        let cos_t = (1.0 - sin2_t).sqrt();
-        -wi / eta + h * (cos_i / eta - cos_t)
-    };
-    let wo = wo.normalize_or_zero().as_vec3();
-    let ng = v.ng;
-    let same_side = ng.dot(wi.as_vec3()) * ng.dot(wo) > 0.0;
-    (wo != Vec3::ZERO && same_side == reflect && v.reflects(wi.as_vec3(), wo) == reflect).then_some(wo)
 }
 
 impl HalfVectorLensPerturbation {
@@ -115,15 +54,7 @@ impl HalfVectorLensPerturbation {
     /// D(p) for the camera chain p_0 … p_c: the lens perturbation's density times dω_h/dω_o at every
     /// held vertex.
     fn chain_density(&self, scene: &Scene, chain: &[Vertex]) -> f64 {
-        let mut density = camera_chain_density(scene, chain);
-        for j in 1..chain.len() - 1 {
-            if is_held(&chain[j], self.threshold) {
-                let wi = chain[j].direction_to(&chain[j - 1]);
-                let wo = chain[j].direction_to(&chain[j + 1]);
-                density *= half_vector(scene, &chain[j], wi, wo).map_or(0.0, |(_, jac)| jac);
-            }
-        }
-        density
+        camera_chain_density(scene, chain) * held_jacobian_product(scene, chain, self.threshold)
     }
 
     /// Retraces x_1 … x_c from the primary ray through `film`: returns `[x_0, y_1, …, y_c]`.
@@ -134,54 +65,17 @@ impl HalfVectorLensPerturbation {
         c: usize,
         film: Vec2,
     ) -> Result<Vec<Vertex>, Failure> {
-        let scene = ctx.scene;
+        let ray = primary_ray(ctx.scene, film)?;
         let ends_on_emitter = c == x.len() - 1;
-        let mut ray = primary_ray(scene, film)?;
+        let traced =
+            trace_held_chain(ctx, &x[..=c], ray, TransportMode::Radiance, ends_on_emitter, self.threshold)?;
+        // y_c must be the first vertex that is not held, as x_c is, or y's chain would end elsewhere.
+        if !ends_on_emitter && traced.last().is_some_and(|v| is_held(v, self.threshold)) {
+            return Err(Failure::Failed("chain_structure"));
+        }
         let mut out = Vec::with_capacity(c + 1);
         out.push(x[0]);
-        for j in 1..=c {
-            ctx.counters.rays += 1;
-            let escapes = j == c && x[c].kind == VertexKind::InfiniteLight;
-            let Some(si) = scene.intersect(&ray) else {
-                let light = x[c].light.filter(|_| escapes).ok_or(Failure::Failed("miss"))?;
-                out.push(Vertex::infinite(scene, light, ray.origin, ray.dir));
-                return Ok(out);
-            };
-            if escapes {
-                return Err(Failure::Failed("blocked_environment"));
-            }
-            let mut v = Vertex::surface(scene, &si, Spectrum::ONE);
-            let old = &x[j];
-            if j == c {
-                if ends_on_emitter && v.light.is_none() {
-                    return Err(Failure::Failed("missed_emitter"));
-                }
-                if !ends_on_emitter && is_held(&v, self.threshold) {
-                    return Err(Failure::Failed("chain_structure"));
-                }
-                out.push(v);
-                return Ok(out);
-            }
-            let reflect = old.reflects(old.direction_to(&x[j - 1]), old.direction_to(&x[j + 1]));
-            let wo = if old.delta {
-                let wo = v.dirac_direction(scene, si.wi, reflect, TransportMode::Radiance);
-                v.delta = true;
-                wo.ok_or(Failure::Failed("no_dirac_lobe"))?
-            } else {
-                if !is_held(&v, self.threshold) {
-                    return Err(Failure::Failed("chain_structure"));
-                }
-                let (h_old, _) =
-                    half_vector(scene, old, old.direction_to(&x[j - 1]), old.direction_to(&x[j + 1]))
-                        .ok_or(Failure::Failed("degenerate_half_vector"))?;
-                let h_local = old.frame.to_local(h_old.as_vec3());
-                let h_new = v.frame.to_world(h_local).as_dvec3().normalize_or_zero();
-                direction_for_half_vector(scene, &v, si.wi, h_new, reflect)
-                    .ok_or(Failure::Failed("no_direction_for_half_vector"))?
-            };
-            ray = ray_from(&v, wo);
-            out.push(v);
-        }
+        out.extend(traced);
         Ok(out)
     }
 

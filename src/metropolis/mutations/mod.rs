@@ -6,6 +6,7 @@
 pub mod bidir;
 pub mod caustic;
 pub mod halfvector;
+pub mod hvcaustic;
 pub mod hvlens;
 pub mod largestep;
 pub mod lens;
@@ -38,10 +39,12 @@ pub enum MutationKind {
     LargeStep,
     /// Lens perturbation continued through near-specular glossy vertices at fixed half vectors.
     HalfVectorLens,
+    /// Caustic perturbation continued through near-specular glossy vertices at fixed half vectors.
+    HalfVectorCaustic,
 }
 
 impl MutationKind {
-    pub const ALL: [MutationKind; 8] = [
+    pub const ALL: [MutationKind; 9] = [
         MutationKind::Bidirectional,
         MutationKind::Lens,
         MutationKind::Caustic,
@@ -50,6 +53,7 @@ impl MutationKind {
         MutationKind::HalfVector,
         MutationKind::LargeStep,
         MutationKind::HalfVectorLens,
+        MutationKind::HalfVectorCaustic,
     ];
 
     pub fn name(self) -> &'static str {
@@ -62,6 +66,7 @@ impl MutationKind {
             MutationKind::HalfVector => "hslt",
             MutationKind::LargeStep => "largestep",
             MutationKind::HalfVectorLens => "hvlens",
+            MutationKind::HalfVectorCaustic => "hvcaustic",
         }
     }
 
@@ -152,6 +157,9 @@ pub fn make<'a>(
         MutationKind::HalfVectorLens => {
             Some(Box::new(hvlens::HalfVectorLensPerturbation { threshold: settings.specular_threshold }))
         }
+        MutationKind::HalfVectorCaustic => Some(Box::new(hvcaustic::HalfVectorCausticPerturbation {
+            threshold: settings.specular_threshold,
+        })),
         MutationKind::Manifold => {
             Some(Box::new(ManifoldPerturbation::new(settings.lambda, settings.specular_threshold)))
         }

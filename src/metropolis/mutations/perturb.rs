@@ -1,6 +1,8 @@
 //! What Veach's perturbations share (Veach 1997, §11.4.2–11.4.4): retracing a specular chain
 //! deterministically through the same-side Dirac lobes the old path used, the solid-angle-to-area
-//! factors that make the traced vertices' densities, and the 1/r-distributed radial offsets.
+//! factors that make the traced vertices' densities, and the 1/r-distributed radial offsets; and
+//! what their half-vector versions add (`hvlens`, `hvcaustic`): near-specular glossy vertices held at
+//! their half vectors (HSLT's parameterisation, Kaplanyan et al. 2014, §4) with dω_h/dω_o.
 //!
 //! Densities follow the Dirac convention of `path_state`: a step through a Dirac lobe is taken with
 //! probability 1 (the delta removed), so a chain traced from a direction of solid-angle density p_ω
@@ -10,10 +12,11 @@ use crate::bsdf::TransportMode;
 use crate::geometry::{ray_epsilon, Frame, Ray, Vec2, Vec3};
 use crate::metropolis::chain::{Failure, Proposal};
 use crate::metropolis::path_state::{PathContext, PathState};
-use crate::path::{visible, Vertex, VertexKind};
+use crate::path::{visible, ScatterClass, Vertex, VertexKind};
 use crate::sampling::Sampler;
 use crate::scene::Scene;
 use crate::spectrum::Spectrum;
+use glam::DVec3;
 
 /// Smallest film offset of the lens and multi-chain perturbations, in pixels (Veach's r1).
 pub const FILM_R1_PIXELS: f64 = 0.1;
@@ -97,6 +100,84 @@ pub fn first_non_delta(vertices: &[Vertex], from: usize) -> Option<usize> {
     (from..vertices.len()).find(|&i| !vertices[i].delta)
 }
 
+/// A non-Dirac surface vertex glossy enough (α < `threshold`) to be carried at its half vector.
+pub fn is_held(v: &Vertex, threshold: f32) -> bool {
+    v.kind == VertexKind::Surface
+        && !v.delta
+        && matches!(v.class, ScatterClass::Glossy { alpha } if alpha < threshold)
+}
+
+/// The relative index η_o/η_i that forms H = ω_i + η ω_o at `v`: 1 for reflection, the BSDF's ratio for
+/// transmission, inverted when ω_i arrives from inside (as `manifold::constraint` does).
+fn relative_eta(scene: &Scene, v: &Vertex, wi: DVec3, reflect: bool) -> f64 {
+    if reflect {
+        return 1.0;
+    }
+    let eta = v.bsdf(scene).map_or(1.0, |b| b.eta() as f64);
+    if v.ng.as_dvec3().dot(wi) > 0.0 {
+        eta
+    } else {
+        1.0 / eta
+    }
+}
+
+/// The unit (generalised) half vector of `v` between ω_i and ω_o, on the side of the shading normal,
+/// with dω_h/dω_o; `None` where ω_i = −η ω_o leaves it undefined. H is the same line whichever of the
+/// two directions is called ω_i, so a chain may be traced from either end.
+pub fn half_vector(scene: &Scene, v: &Vertex, wi: Vec3, wo: Vec3) -> Option<(DVec3, f64)> {
+    let (wi, wo) = (wi.as_dvec3(), wo.as_dvec3());
+    let reflect = v.reflects(wi.as_vec3(), wo.as_vec3());
+    let eta = relative_eta(scene, v, wi, reflect);
+    let raw = wi + wo * eta;
+    let len2 = raw.length_squared();
+    if !(len2 > 1e-12 * (1.0 + eta) * (1.0 + eta)) {
+        return None;
+    }
+    let mut h = raw / len2.sqrt();
+    if h.dot(v.frame.n.as_dvec3()) < 0.0 {
+        h = -h;
+    }
+    let jacobian = eta * eta * wo.dot(h).abs() / len2;
+    Some((h, jacobian))
+}
+
+/// The direction leaving `v` whose half vector with `wi` is `h` on the `reflect` side, if there is one.
+fn direction_for_half_vector(scene: &Scene, v: &Vertex, wi: Vec3, h: DVec3, reflect: bool) -> Option<Vec3> {
+    let wi = wi.as_dvec3();
+    let h = if wi.dot(h) < 0.0 { -h } else { h };
+    let cos_i = wi.dot(h);
+    let wo = if reflect {
+        h * (2.0 * cos_i) - wi
+    } else {
+        let eta = relative_eta(scene, v, wi, false);
+        let sin2_t = (1.0 - cos_i * cos_i).max(0.0) / (eta * eta);
+        if sin2_t >= 1.0 {
+            return None;
+        }
+        let cos_t = (1.0 - sin2_t).sqrt();
+        -wi / eta + h * (cos_i / eta - cos_t)
+    };
+    let wo = wo.normalize_or_zero().as_vec3();
+    let ng = v.ng;
+    let same_side = ng.dot(wi.as_vec3()) * ng.dot(wo) > 0.0;
+    (wo != Vec3::ZERO && same_side == reflect && v.reflects(wi.as_vec3(), wo) == reflect).then_some(wo)
+}
+
+/// Π dω_h/dω_o over the held inner vertices of `chain` (in tracing order: ω_o points to the next
+/// vertex). With the held half vectors as coordinates, a traced chain's density is this times the
+/// area conversion (the Jacobian is block triangular; `hvlens` derives it).
+pub fn held_jacobian_product(scene: &Scene, chain: &[Vertex], threshold: f32) -> f64 {
+    let mut product = 1.0;
+    for j in 1..chain.len().saturating_sub(1) {
+        if is_held(&chain[j], threshold) {
+            let wi = chain[j].direction_to(&chain[j - 1]);
+            let wo = chain[j].direction_to(&chain[j + 1]);
+            product *= half_vector(scene, &chain[j], wi, wo).map_or(0.0, |(_, jac)| jac);
+        }
+    }
+    product
+}
+
 /// Traces a specular chain again: `old` is the old chain in tracing order (`old[0]` the vertex the
 /// ray leaves, `old[1..]` the vertices to replace, all but the last `delta`). Each new hit under an
 /// old `delta` vertex continues through its BSDF's Dirac lobe on the side the old path used and is
@@ -106,9 +187,24 @@ pub fn first_non_delta(vertices: &[Vertex], from: usize) -> Option<usize> {
 pub fn trace_specular_chain(
     ctx: &mut PathContext,
     old: &[Vertex],
+    ray: Ray,
+    mode: TransportMode,
+    ends_on_emitter: bool,
+) -> Result<Vec<Vertex>, Failure> {
+    trace_held_chain(ctx, old, ray, mode, ends_on_emitter, 0.0)
+}
+
+/// `trace_specular_chain` through held vertices too: an old inner vertex that is glossy below
+/// `threshold` (`is_held`) must be replaced by a held one, which the chain leaves in the direction
+/// whose half vector, in the new vertex's shading frame, is the old one's in its frame. Any other
+/// non-Dirac inner vertex is a `chain_structure` failure. Threshold 0 holds nothing.
+pub fn trace_held_chain(
+    ctx: &mut PathContext,
+    old: &[Vertex],
     mut ray: Ray,
     mode: TransportMode,
     ends_on_emitter: bool,
+    threshold: f32,
 ) -> Result<Vec<Vertex>, Failure> {
     let scene = ctx.scene;
     let m = old.len() - 1;
@@ -135,14 +231,25 @@ pub fn trace_specular_chain(
             out.push(v);
             return Ok(out);
         }
-        if !end.delta {
-            return Err(Failure::Failed("chain_structure"));
-        }
         let reflect = end.reflects(end.direction_to(&old[j - 1]), end.direction_to(&old[j + 1]));
-        let Some(wo) = v.dirac_direction(scene, si.wi, reflect, mode) else {
-            return Err(Failure::Failed("no_dirac_lobe"));
+        let wo = if end.delta {
+            let wo =
+                v.dirac_direction(scene, si.wi, reflect, mode).ok_or(Failure::Failed("no_dirac_lobe"))?;
+            v.delta = true;
+            wo
+        } else if is_held(end, threshold) {
+            if !is_held(&v, threshold) {
+                return Err(Failure::Failed("chain_structure"));
+            }
+            let (h_old, _) =
+                half_vector(scene, end, end.direction_to(&old[j - 1]), end.direction_to(&old[j + 1]))
+                    .ok_or(Failure::Failed("degenerate_half_vector"))?;
+            let h_new = v.frame.to_world(end.frame.to_local(h_old.as_vec3())).as_dvec3().normalize_or_zero();
+            direction_for_half_vector(scene, &v, si.wi, h_new, reflect)
+                .ok_or(Failure::Failed("no_direction_for_half_vector"))?
+        } else {
+            return Err(Failure::Failed("chain_structure"));
         };
-        v.delta = true;
         ray = ray_from(&v, wo);
         out.push(v);
     }
