@@ -189,15 +189,17 @@ impl IntegratorKind {
     /// plus the manifold perturbation for MEMLT (Mitsuba's MEMLT mixture), the half-vector mutation
     /// with the bidirectional one for HSLT (the paper's "HSLT"), and with Veach's set for HSLT+MLT.
     /// Every mixture has the large step, whose f(y)/p(y) refines b (and with it the direct pass runs,
-    /// `DirectPass::for_path_space`). The HSLT mixtures add the half-vector lens perturbation and
-    /// give the half-vector mutation a tenth of the proposals: one costs about as much time as 50
-    /// lens perturbations (jewelry's rings, 2 threads), so at weight 1 it took 90% of the time and
-    /// the rings' relative MSE was 2.2× that at 0.1 (docs/benchmarks.md, session 8). The large step
+    /// `DirectPass::for_path_space`). The HSLT mixtures add the half-vector lens and caustic
+    /// perturbations (HSLT's parameterisation in Veach's two perturbations; the caustic one halved
+    /// the chains' error on the rings' floor caustics, docs/benchmarks.md, session 14) and give the
+    /// half-vector mutation a tenth of the proposals: one costs about as much time as 50 lens
+    /// perturbations (jewelry's rings, 2 threads), so at weight 1 it took 90% of the time and the
+    /// rings' relative MSE was 2.2× that at 0.1 (docs/benchmarks.md, session 8). The large step
     /// makes `LARGE_STEP_SHARE` of the proposals.
     pub fn default_mutations(self) -> Vec<(MutationKind, f64)> {
         use MutationKind::*;
         let veach = [(Bidirectional, 1.0), (Lens, 1.0), (Caustic, 1.0), (MultiChain, 1.0)];
-        let half_vector = [(HalfVector, HALF_VECTOR_WEIGHT), (HalfVectorLens, 1.0)];
+        let half_vector = [(HalfVector, HALF_VECTOR_WEIGHT), (HalfVectorLens, 1.0), (HalfVectorCaustic, 1.0)];
         let mut mixture = match self {
             IntegratorKind::Path | IntegratorKind::Bdpt | IntegratorKind::Pssmlt => return Vec::new(),
             IntegratorKind::Mlt => veach.to_vec(),
@@ -206,7 +208,7 @@ impl IntegratorKind {
             IntegratorKind::HsltMlt => [&veach[..], &half_vector[..]].concat(),
         };
         let others: f64 = mixture.iter().map(|(_, w)| w).sum();
-        // Rounded so the metadata's mixture reads 5.1, not 5.1000000000000005.
+        // Rounded so the metadata's mixture reads 6.1, not 6.1000000000000005.
         let large = (others * LARGE_STEP_SHARE / (1.0 - LARGE_STEP_SHARE) * 1e6).round() / 1e6;
         mixture.push((LargeStep, large));
         mixture
