@@ -65,8 +65,7 @@ impl HalfVectorCausticPerturbation {
     /// D(p) of the chain p_1 … p_m: the area conversion from x_m's direction and Π dω_h/dω_o at the
     /// held vertices, both in tracing order (from p_m).
     fn chain_density(&self, scene: &Scene, chain: &[Vertex]) -> f64 {
-        let traced: Vec<Vertex> = chain.iter().rev().copied().collect();
-        conversion_product_reversed(scene, chain) * held_jacobian_product(scene, &traced, self.threshold)
+        conversion_product_reversed(scene, chain) * held_jacobian_product(scene, chain, self.threshold, true)
     }
 
     /// The deterministic part of the move: the chain of `current` retraced from x_m along `w_new`,

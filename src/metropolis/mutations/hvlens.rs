@@ -54,7 +54,7 @@ impl HalfVectorLensPerturbation {
     /// D(p) for the camera chain p_0 … p_c: the lens perturbation's density times dω_h/dω_o at every
     /// held vertex.
     fn chain_density(&self, scene: &Scene, chain: &[Vertex]) -> f64 {
-        camera_chain_density(scene, chain) * held_jacobian_product(scene, chain, self.threshold)
+        camera_chain_density(scene, chain) * held_jacobian_product(scene, chain, self.threshold, false)
     }
 
     /// Retraces x_1 … x_c from the primary ray through `film`: returns `[x_0, y_1, …, y_c]`.

@@ -163,15 +163,18 @@ fn direction_for_half_vector(scene: &Scene, v: &Vertex, wi: Vec3, h: DVec3, refl
     (wo != Vec3::ZERO && same_side == reflect && v.reflects(wi.as_vec3(), wo) == reflect).then_some(wo)
 }
 
-/// Π dω_h/dω_o over the held inner vertices of `chain` (in tracing order: ω_o points to the next
-/// vertex). With the held half vectors as coordinates, a traced chain's density is this times the
-/// area conversion (the Jacobian is block triangular; `hvlens` derives it).
-pub fn held_jacobian_product(scene: &Scene, chain: &[Vertex], threshold: f32) -> f64 {
+/// Π dω_h/dω_o over the held inner vertices of `chain`, traced from its first vertex (ω_o points to
+/// the next vertex) or, `from_last`, from its last (ω_o points to the previous one), so the light-side
+/// chain of `hvcaustic` needs no reversed copy. With the held half vectors as coordinates, a traced
+/// chain's density is this times the area conversion (the Jacobian is block triangular; `hvlens`
+/// derives it).
+pub fn held_jacobian_product(scene: &Scene, chain: &[Vertex], threshold: f32, from_last: bool) -> f64 {
     let mut product = 1.0;
     for j in 1..chain.len().saturating_sub(1) {
         if is_held(&chain[j], threshold) {
-            let wi = chain[j].direction_to(&chain[j - 1]);
-            let wo = chain[j].direction_to(&chain[j + 1]);
+            let (from, to) = if from_last { (j + 1, j - 1) } else { (j - 1, j + 1) };
+            let wi = chain[j].direction_to(&chain[from]);
+            let wo = chain[j].direction_to(&chain[to]);
             product *= half_vector(scene, &chain[j], wi, wo).map_or(0.0, |(_, jac)| jac);
         }
     }
