@@ -25,6 +25,14 @@ pub struct ErrorArgs {
     /// Also the relative MSE of N×N block means (low-frequency error and bias, less of the noise).
     #[arg(long, value_name = "N", default_value_t = 8)]
     pub block: usize,
+    /// Write the ratio of block-mean luminance (image / reference) over --block tiles, to find where a
+    /// bias sits: an EXR holds the ratios, one value per tile at the image's size; a PNG shows them
+    /// white at 1, red above, blue below (full colour at --ratio-span). Needs exactly one image.
+    #[arg(long, value_name = "FILE")]
+    pub ratio_map: Option<PathBuf>,
+    /// The ratio that --ratio-map's PNG shows in full red (and its inverse in full blue).
+    #[arg(long, value_name = "R", default_value_t = 2.0)]
+    pub ratio_span: f64,
 }
 
 fn read(path: &Path) -> anyhow::Result<ImageBuf> {
@@ -91,6 +99,12 @@ pub fn run(args: ErrorArgs) -> anyhow::Result<i32> {
     if args.block == 0 {
         bail!("--block must be at least 1");
     }
+    if args.ratio_map.is_some() && args.images.len() != 1 {
+        bail!("--ratio-map needs exactly one image, got {}", args.images.len());
+    }
+    if !(args.ratio_span > 1.0 && args.ratio_span.is_finite()) {
+        bail!("--ratio-span must be a finite number above 1, got {}", args.ratio_span);
+    }
     let reference = match args.reference.as_slice() {
         [one] => read(one)?,
         [a, b] => {
@@ -134,8 +148,51 @@ pub fn run(args: ErrorArgs) -> anyhow::Result<i32> {
             mae,
             mean_luminance(&img)
         );
+        if let Some(out) = &args.ratio_map {
+            write_ratio_map(out, &img, &reference, args.block, args.ratio_span)
+                .with_context(|| format!("cannot write the ratio map {}", out.display()))?;
+        }
     }
     Ok(0)
+}
+
+/// Writes the block ratio map of `img` against `reference` and prints its extreme tiles.
+fn write_ratio_map(
+    out: &Path,
+    img: &ImageBuf,
+    reference: &ImageBuf,
+    block: usize,
+    span: f64,
+) -> anyhow::Result<()> {
+    let ratio = metrics::block_ratio_map(img, reference, block)?;
+    let (w, h) = (img.width, img.height);
+    let is_exr = out.extension().is_some_and(|e| e.eq_ignore_ascii_case("exr"));
+    let picture = if is_exr {
+        let mut full = ImageBuf::new(w, h, 1);
+        for y in 0..h {
+            for x in 0..w {
+                full.data[y * w + x] = ratio.data[(y / block) * ratio.width + x / block];
+            }
+        }
+        full
+    } else {
+        metrics::ratio_map_picture(&ratio, block, w, h, span)
+    };
+    let meta = vec![("hslt.ratioMapBlock".to_string(), block.to_string())];
+    crate::image::write_image(out, &picture, &meta)?;
+    let mut tiles: Vec<(usize, f32)> = ratio.data.iter().copied().enumerate().collect();
+    tiles.sort_by(|a, b| (b.1.ln().abs()).total_cmp(&a.1.ln().abs()));
+    let listed: Vec<String> = tiles
+        .iter()
+        .take(5)
+        .map(|&(i, q)| format!("({}, {}) {q:.3}", (i % ratio.width) * block, (i / ratio.width) * block))
+        .collect();
+    println!(
+        "ratio map {} ({block}×{block} tiles); farthest from 1 (tile origin x, y: ratio): {}",
+        out.display(),
+        listed.join(", ")
+    );
+    Ok(())
 }
 
 #[cfg(test)]

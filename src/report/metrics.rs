@@ -141,6 +141,55 @@ pub fn block_means(img: &ImageBuf, block: usize) -> ImageBuf {
     out
 }
 
+/// Ratio of block-mean luminance, image over reference, per `block`×`block` tile (row-major, size of
+/// [`block_means`]): where a bias sits. Blocks where the reference is black give 1 when the image is
+/// black too and +∞ otherwise.
+pub fn block_ratio_map(img: &ImageBuf, reference: &ImageBuf, block: usize) -> anyhow::Result<ImageBuf> {
+    check_sizes(img, reference)?;
+    let (a, r) = (block_means(img, block), block_means(reference, block));
+    let mut out = ImageBuf::new(a.width, a.height, 1);
+    for (i, v) in out.data.iter_mut().enumerate() {
+        let lum = |m: &ImageBuf| (0..3).map(|c| m.data[i * 3 + c] as f64).sum::<f64>();
+        let (x, y) = (lum(&a), lum(&r));
+        *v = if y > 0.0 {
+            (x / y) as f32
+        } else if x == 0.0 {
+            1.0
+        } else {
+            f32::INFINITY
+        };
+    }
+    Ok(out)
+}
+
+/// A block ratio map as a picture the size of the original image: white at ratio 1, red above, blue
+/// below, full colour at a factor of `span` (e.g. 2: red at 2×, blue at ½); black where the ratio is
+/// not finite.
+pub fn ratio_map_picture(ratio: &ImageBuf, block: usize, width: usize, height: usize, span: f64) -> ImageBuf {
+    let mut out = ImageBuf::new(width, height, 3);
+    let scale = span.ln().max(1e-6);
+    for y in 0..height {
+        for x in 0..width {
+            let q = ratio.data[(y / block) * ratio.width + x / block] as f64;
+            let rgb = if !(q.is_finite() && q > 0.0) {
+                [0.0, 0.0, 0.0]
+            } else {
+                let t = (q.ln() / scale).clamp(-1.0, 1.0);
+                if t >= 0.0 {
+                    [1.0, 1.0 - t, 1.0 - t]
+                } else {
+                    [1.0 + t, 1.0 + t, 1.0]
+                }
+            };
+            for (c, v) in rgb.iter().enumerate() {
+                // Linear values: the sRGB writer encodes them.
+                out.data[(y * width + x) * 3 + c] = crate::image::srgb_to_linear(*v as f32);
+            }
+        }
+    }
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -151,6 +200,32 @@ mod tests {
             px.copy_from_slice(&v);
         }
         img
+    }
+
+    #[test]
+    fn block_ratio_map_finds_the_biased_block() {
+        let r = constant(8, 4, [0.5, 0.5, 0.5]);
+        let mut a = r.clone();
+        // The top-right 4×4 block is 20% bright.
+        for y in 0..4 {
+            for x in 4..8 {
+                for c in 0..3 {
+                    a.data[(y * 8 + x) * 3 + c] = 0.6;
+                }
+            }
+        }
+        let map = block_ratio_map(&a, &r, 4).unwrap();
+        assert_eq!((map.width, map.height, map.channels), (2, 1, 1));
+        assert!((map.data[0] - 1.0).abs() < 1e-6 && (map.data[1] - 1.2).abs() < 1e-6, "{:?}", map.data);
+        let black = constant(8, 4, [0.0; 3]);
+        let zero = block_ratio_map(&black, &black, 4).unwrap();
+        assert_eq!(zero.data, vec![1.0, 1.0]);
+        assert!(block_ratio_map(&r, &black, 4).unwrap().data[0].is_infinite());
+        let pic = ratio_map_picture(&map, 4, 8, 4, 2.0);
+        // Ratio 1 is white; 1.2 is reddish (full red, reduced green and blue).
+        assert_eq!(pic.pixel(0, 0), &[1.0, 1.0, 1.0]);
+        let red = pic.pixel(7, 3);
+        assert!(red[0] == 1.0 && red[1] < 1.0 && red[1] == red[2], "{red:?}");
     }
 
     #[test]
