@@ -29,6 +29,16 @@ impl Ray {
         Ray { origin, dir, tmin: 0.0, tmax }
     }
 
+    /// A ray leaving the surface point `p` along the unit direction `dir`, on the exact line through
+    /// `p`: the surface is skipped by starting at t = ε (`ray_epsilon`) instead of moving the origin
+    /// off it. Path densities are recomputed from vertex positions (`PathView::density`), and a vertex
+    /// found from a displaced origin lies off the line p + t·dir: over a short edge (a glass block
+    /// 2e-3 above a floor) the direction between the two positions then misses the sampled one by
+    /// ε/length, several lobe widths of a near-specular BSDF, and BDPT's MIS weights go wrong.
+    pub fn leaving(p: Vec3, dir: Vec3) -> Self {
+        Ray { origin: p, dir, tmin: ray_epsilon(p), tmax: f32::INFINITY }
+    }
+
     pub fn at(&self, t: f32) -> Vec3 {
         self.origin + self.dir * t
     }

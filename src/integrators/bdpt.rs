@@ -9,7 +9,7 @@
 
 use super::{DepthLimits, PixelIntegrator, SampleCounters, SampleOutput};
 use crate::bsdf::TransportMode;
-use crate::geometry::{offset_origin, Ray, Vec2, Vec3};
+use crate::geometry::{Ray, Vec2, Vec3};
 use crate::lights::{EmissionSample, Light};
 use crate::path::walk::{self, WalkLimits};
 use crate::path::{geometry_term, mis_weight_limited, visible, MisHeuristic, PathPdfs, PathView, Vertex};
@@ -368,8 +368,8 @@ pub fn sample_light_endpoint(scene: &Scene, u_light: f32, u_pos: Vec2, u_dir: Ve
     vertex.pdf_from_light = vertex.pdf_light_origin(scene);
     let cos = if es.ng == Vec3::ZERO { 1.0 } else { es.ng.dot(es.dir).abs() };
     let beta = es.le * (cos / pdf_emit);
-    let origin = if vertex.is_surface() { offset_origin(es.p, es.ng, es.dir) } else { es.p };
-    Some(LightEndpoint { vertex, ray: Ray::new(origin, es.dir), beta })
+    let ray = if vertex.is_surface() { Ray::leaving(es.p, es.dir) } else { Ray::new(es.p, es.dir) };
+    Some(LightEndpoint { vertex, ray, beta })
 }
 
 /// A light endpoint for next-event connections (s = 1), with β = 1 / (its density).

@@ -88,9 +88,9 @@ impl SurfaceInteraction {
         surface_derivatives(&scene.shapes[self.shape].mesh, self.prim, self.bary)
     }
 
-    /// Spawns a ray leaving the surface in world direction `dir`, offset off the surface on its side.
+    /// Spawns a ray leaving the surface in world direction `dir` (`Ray::leaving`).
     pub fn spawn_ray(&self, dir: Vec3) -> Ray {
-        Ray::new(crate::geometry::offset_origin(self.p, self.ng, dir), dir)
+        Ray::leaving(self.p, dir)
     }
 }
 

@@ -7,7 +7,7 @@
 //! light seen through glass or in a mirror) could never be proposed, since no connection can end there.
 
 use crate::bsdf::{BsdfContext, TransportMode};
-use crate::geometry::{offset_origin, Ray, Vec2};
+use crate::geometry::{Ray, Vec2};
 use crate::integrators::bdpt::sample_light_endpoint;
 use crate::integrators::Bdpt;
 use crate::metropolis::chain::{Failure, Mutation, MutationStats, Proposal};
@@ -236,7 +236,7 @@ fn kept_vertex_ray(
         return Err(Failure::Failed("bsdf_sample"));
     }
     let wo = v.frame.to_world(bs.wo);
-    Ok(Ray::new(offset_origin(v.p, v.ng, wo), wo))
+    Ok(Ray::leaving(v.p, wo))
 }
 
 /// Grows `path` by exactly `count` vertices along `ray` without Russian roulette.
@@ -404,9 +404,11 @@ fn grow_split(
                 let dir = emitter
                     .sample_emission_direction(scene, rng.next_2d())
                     .ok_or(Failure::Failed("no_emission"))?;
-                let origin =
-                    if emitter.is_surface() { offset_origin(emitter.p, emitter.ng, dir) } else { emitter.p };
-                Ray::new(origin, dir)
+                if emitter.is_surface() {
+                    Ray::leaving(emitter.p, dir)
+                } else {
+                    Ray::new(emitter.p, dir)
+                }
             } else {
                 kept_vertex_ray(scene, &x[b], &x[b + 1], TransportMode::Importance, rng)?
             };

@@ -20,7 +20,7 @@
 
 use glam::{DVec2, DVec3};
 
-use crate::geometry::{offset_origin, Ray, Vec2, Vec3};
+use crate::geometry::{Ray, Vec2, Vec3};
 use crate::manifold::{
     half_vector, half_vector_constraint, log_dirac_factor, path_constraints, path_etas, path_geometry,
     scatter_with_half_vector, walk_counting_rays, LocalGeometry, WalkSettings,
@@ -179,7 +179,7 @@ impl Mutation<PathState, PathContext<'_>> for ManifoldPerturbation {
             let wo = scatter_with_half_vector(&g, wi, held_h[i], eta[i], transmits(x, i))
                 .ok_or(Failure::Failed("no_direction"))?
                 .as_vec3();
-            ray = Ray::new(offset_origin(v.p, v.ng, wo), wo);
+            ray = Ray::leaving(v.p, wo);
             y.push(v);
         }
 
