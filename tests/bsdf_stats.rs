@@ -295,6 +295,46 @@ fn chi2_roughdielectric() {
 }
 
 #[test]
+fn chi2_roughdielectric_extreme_roughness_and_nested_iors() {
+    // α from near-specular (0.001) to 1, and the nested pairs of a water cube inside glass (1.33 in 1.5)
+    // and of glass seen from water (1.5 in 1.33), from both sides; cos θi = -0.3 from the dense side of
+    // 1.5/1.0 and 1.5/1.33 is past the critical angle (total internal reflection).
+    let mut seed = 200;
+    let cases: [(f64, f64, f64); 6] = [
+        (0.001, 1.5, 1.0),
+        (1.0, 1.5, 1.0),
+        (0.01, 1.33, 1.5),
+        (0.1, 1.33, 1.5),
+        (0.01, 1.5, 1.33),
+        (0.3, 1.5, 1.33),
+    ];
+    for (alpha, int_ior, ext_ior) in cases {
+        for dist in DISTRIBUTIONS {
+            let b = make(
+                "roughdielectric",
+                &[
+                    ("distribution", s(dist)),
+                    ("alpha", f(alpha)),
+                    ("int_ior", f(int_ior)),
+                    ("ext_ior", f(ext_ior)),
+                ],
+            );
+            for c in [0.8, 0.1, -0.9, -0.3] {
+                seed += 1;
+                let name = format!("roughdielectric {dist} α={alpha} {int_ior}/{ext_ior} cosθi={c}");
+                let o = chi2_test(&name, &*b, incident(c), TransportMode::Importance, N_SAMPLES / 2, seed);
+                check(&name, &o, true);
+                // A lossless interface: near-specular, everything is either reflected or refracted
+                // (microfacet models lose only multiple scattering, negligible at α = 0.001).
+                if alpha <= 0.01 {
+                    assert!(o.albedo.min_element() > 0.97, "{name}: albedo {:?} of a lossless interface", o.albedo);
+                }
+            }
+        }
+    }
+}
+
+#[test]
 fn chi2_plastics_and_diffuse() {
     let mut seed = 300;
     for dist in DISTRIBUTIONS {
@@ -388,16 +428,32 @@ fn reflection_is_reciprocal() {
 fn refraction_radiance_and_importance_are_adjoint() {
     let dirs = direction_set();
     for dist in DISTRIBUTIONS {
-        for alpha in [0.05, 0.3, 0.8] {
+        for (alpha, int_ior, ext_ior) in
+            [(0.05, 1.7, 1.0), (0.3, 1.7, 1.0), (0.8, 1.7, 1.0), (0.1, 1.33, 1.5), (0.1, 1.5, 1.33)]
+        {
             let b = make(
                 "roughdielectric",
-                &[("distribution", s(dist)), ("alpha", f(alpha)), ("int_ior", f(1.7)), ("ext_ior", f(1.0))],
+                &[
+                    ("distribution", s(dist)),
+                    ("alpha", f(alpha)),
+                    ("int_ior", f(int_ior)),
+                    ("ext_ior", f(ext_ior)),
+                ],
             );
+            let eta = (int_ior / ext_ior) as f32;
             let (rad, imp) = (ctx(TransportMode::Radiance), ctx(TransportMode::Importance));
             let mut nonzero = 0;
             for &wi in &dirs {
                 for &wo in &dirs {
                     if wi.z * wo.z >= 0.0 {
+                        continue;
+                    }
+                    // Within a few degrees of the critical angle 1 − F is the difference of two
+                    // nearly equal f32 numbers and the two evaluation orders round it differently
+                    // (3.6% apart at wo·m = -0.0014 for 1.33/1.5): leave those pairs out.
+                    let e = if wi.z > 0.0 { eta } else { 1.0 / eta };
+                    let m = (wi + wo * e).normalize();
+                    if wi.dot(m).abs().min(wo.dot(m).abs()) < 0.02 {
                         continue;
                     }
                     let f_rad = b.eval(&rad, wi, wo);
@@ -407,15 +463,15 @@ fn refraction_radiance_and_importance_are_adjoint() {
                     }
                     assert!(
                         (f_rad - f_adj).abs().max_element() <= 1e-3 * f_rad.max_element().max(1e-3),
-                        "{dist} α={alpha}: f_rad(wi,wo) {f_rad} != f_imp(wo,wi) {f_adj}"
+                        "{dist} α={alpha} {int_ior}/{ext_ior}: f_rad(wi,wo) {f_rad} != f_imp(wo,wi) {f_adj}"
                     );
                     // Radiance mode differs from importance mode by exactly (η_i/η_o)².
-                    let eta_o_over_i = if wi.z > 0.0 { 1.7f32 } else { 1.0 / 1.7 };
+                    let eta_o_over_i = if wi.z > 0.0 { eta } else { 1.0 / eta };
                     let f_imp = b.eval(&imp, wi, wo);
                     let scaled = f_rad * eta_o_over_i * eta_o_over_i;
                     assert!(
                         (scaled - f_imp).abs().max_element() <= 1e-4 * f_imp.max_element().max(1e-3),
-                        "{dist} α={alpha} wi {wi} wo {wo}: η²·f_rad {scaled} vs f_imp {f_imp}"
+                        "{dist} α={alpha} {int_ior}/{ext_ior} wi {wi} wo {wo}: η²·f_rad {scaled} vs f_imp {f_imp}"
                     );
                 }
             }
