@@ -377,9 +377,9 @@ fn inside_fan_pyramid(p: Vec3) -> bool {
 }
 
 #[test]
-fn rays_aimed_at_shared_edges_and_vertices_never_slip_through() {
+fn rays_aimed_at_shared_edges_and_vertices_never_slip_through_in_robust_mode() {
     let (fan, targets) = fan();
-    let scene = EmbreeScene::build(std::slice::from_ref(&fan)).unwrap();
+    let scene = EmbreeScene::build_robust(std::slice::from_ref(&fan)).unwrap();
     let mut rng = Pcg32::seed_from_u64(3);
     let mut rays = Vec::new();
     let mut candidates = 0;
@@ -423,6 +423,12 @@ fn rays_aimed_at_shared_edges_and_vertices_never_slip_through() {
     let mut occ = vec![false; rays.len()];
     scene.occluded_batch(&rays, &mut occ);
     assert!(occ.iter().all(|&o| o), "a packet ray slipped through");
+
+    // The default mode (Mitsuba 3's flags) is not watertight, but rays aimed exactly at an edge are
+    // the only ones it can lose, and it loses few of them.
+    let fast = EmbreeScene::build(std::slice::from_ref(&fan)).unwrap();
+    let lost = rays.iter().filter(|r| fast.intersect(r).is_none()).count();
+    assert!(lost * 100 <= rays.len(), "the default mode lost {lost} of {} edge rays", rays.len());
 
     // Cube corners and edge midpoints, approached from outside so the ray continues into the solid.
     let cube = cube("cube", -1.0, 1.0);

@@ -87,8 +87,12 @@ impl RayQuery for NoGeometry {
 /// Which backend to build.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub enum AccelKind {
+    /// Embree's default triangle test, which rounds as Mitsuba 3's (the same library and flags).
     #[default]
     Embree,
+    /// Embree's robust (watertight) mode: rays aimed exactly at a shared edge or vertex never slip
+    /// through, at some speed, and coincident faces then split differently from Mitsuba's.
+    EmbreeRobust,
     /// Pure-Rust compressed wide BVH (`obvhs`) with a watertight triangle test.
     Bvh,
 }
@@ -102,6 +106,7 @@ pub fn build<M: std::borrow::Borrow<TriangleMesh>>(
 ) -> anyhow::Result<Box<dyn RayQuery>> {
     match kind {
         AccelKind::Embree => Ok(Box::new(embree::EmbreeScene::build(meshes)?)),
+        AccelKind::EmbreeRobust => Ok(Box::new(embree::EmbreeScene::build_robust(meshes)?)),
         AccelKind::Bvh => Ok(Box::new(bvh::BvhScene::build(meshes)?)),
     }
 }

@@ -226,7 +226,8 @@ pub struct RenderArgs {
     /// pass, which then does not run, so an equal-time comparison at 3 measures the chains alone).
     #[arg(long, value_name = "N", default_value_t = 1)]
     pub min_depth: i32,
-    /// Ray-query backend.
+    /// Ray-query backend: embree (rounds as Mitsuba 3 does), embree-robust (Embree's watertight
+    /// mode) or bvh (pure Rust, watertight).
     #[arg(long, default_value = "embree")]
     pub accel: String,
     /// No progress bar or summary.
@@ -263,8 +264,9 @@ pub(crate) fn parse_hslt_direction(name: &str) -> anyhow::Result<TraceDirection>
 fn parse_accel(name: &str) -> anyhow::Result<AccelKind> {
     match name {
         "embree" => Ok(AccelKind::Embree),
+        "embree-robust" => Ok(AccelKind::EmbreeRobust),
         "bvh" => Ok(AccelKind::Bvh),
-        other => bail!("unknown ray-query backend '{other}' (available: embree, bvh)"),
+        other => bail!("unknown ray-query backend '{other}' (available: embree, embree-robust, bvh)"),
     }
 }
 

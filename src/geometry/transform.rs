@@ -29,8 +29,15 @@ impl Transform {
         Some(Transform { matrix, inverse })
     }
 
+    /// Transforms a point with Mitsuba 3's arithmetic (`transform_affine`: the translation column,
+    /// then one fused multiply-add per coordinate), so that mesh vertices land on the same floats in
+    /// both renderers and coplanar faces round alike (docs/rough-glass.md).
     pub fn point(&self, p: Vec3) -> Vec3 {
-        self.matrix.transform_point3(p)
+        let fma = |col: usize, s: f32, acc: Vec3| {
+            let c = self.matrix.col(col).truncate();
+            Vec3::new(c.x.mul_add(s, acc.x), c.y.mul_add(s, acc.y), c.z.mul_add(s, acc.z))
+        };
+        fma(2, p.z, fma(1, p.y, fma(0, p.x, self.matrix.col(3).truncate())))
     }
 
     pub fn vector(&self, v: Vec3) -> Vec3 {

@@ -707,20 +707,10 @@ pub fn snake_case(name: &str) -> String {
 /// Rotation by `angle_deg` degrees about `axis`, right-handed (counter-clockwise when looking
 /// down the axis towards the origin), as Mitsuba's `Transform4f::rotate`.
 pub fn rotation(axis: DVec3, angle_deg: f64) -> DMat4 {
-    // In single precision, as Mitsuba 3 builds it (its `Float`): a quarter turn leaves cos = -4.4e-8,
-    // not 6e-17, so a rotated floor is tilted by that much, and (1 - cos) + cos need not be 1. Faces
-    // that the file makes coplanar (a cube resting on that floor) then round alike in both renderers
-    // and which of the two a ray meets first is split alike (docs/rough-glass.md).
-    let (sin, cos) = (angle_deg as f32).to_radians().sin_cos();
-    let a = axis.as_vec3().normalize();
-    let c1 = 1.0 - cos;
-    glam::Mat4::from_cols(
-        glam::Vec4::new(a.x * a.x * c1 + cos, a.x * a.y * c1 + a.z * sin, a.x * a.z * c1 - a.y * sin, 0.0),
-        glam::Vec4::new(a.x * a.y * c1 - a.z * sin, a.y * a.y * c1 + cos, a.y * a.z * c1 + a.x * sin, 0.0),
-        glam::Vec4::new(a.x * a.z * c1 + a.y * sin, a.y * a.z * c1 - a.x * sin, a.z * a.z * c1 + cos, 0.0),
-        glam::Vec4::W,
-    )
-    .as_dmat4()
+    // In double precision, as Mitsuba 3's XML loader builds it before rounding the whole
+    // transform to single precision: a quarter turn leaves cos = 6e-17, so a rotated floor stays
+    // flat to 1e-16 (docs/rough-glass.md, "A face touching the floor").
+    DMat4::from_axis_angle(axis.normalize(), angle_deg.to_radians())
 }
 
 /// Mitsuba's look-at camera-to-world matrix: columns `[left, new_up, dir, origin]` with

@@ -1,6 +1,9 @@
 //! Safe wrapper around Embree 3 (Wald et al., "Embree: A Kernel Framework for Efficient CPU Ray
-//! Tracing", SIGGRAPH 2014): one robust, high-quality BVH over world-space triangle meshes, queried
-//! with single rays (`rtcIntersect1`) or SIMD packets (`rtcIntersect4/8/16`) chosen per CPU.
+//! Tracing", SIGGRAPH 2014): one high-quality BVH over world-space triangle meshes, queried with
+//! single rays (`rtcIntersect1`) or SIMD packets (`rtcIntersect4/8/16`) chosen per CPU. By default
+//! the scene has Mitsuba 3's flags (none: Embree's fast triangle test), so that coincident faces are
+//! resolved by the same rounding as in Mitsuba (docs/rough-glass.md); `build_robust` selects Embree's
+//! watertight mode instead.
 
 mod ffi;
 
@@ -23,6 +26,7 @@ pub struct EmbreeScene {
     device: Device,
     packet_width: usize,
     mesh_count: usize,
+    robust: bool,
 }
 
 // SAFETY: Embree documents a committed scene as safe to query from any number of threads at once
@@ -38,6 +42,20 @@ impl EmbreeScene {
     /// non-finite vertices or out-of-range indices, and with Embree's own message on device errors.
     /// Takes owned meshes, references or `Arc`s alike, so callers need not copy their meshes.
     pub fn build<M: Borrow<TriangleMesh>>(meshes: &[M]) -> anyhow::Result<EmbreeScene> {
+        Self::build_with_flags(meshes, ffi::RTC_SCENE_FLAG_NONE)
+    }
+
+    /// As [`Self::build`], in Embree's robust mode: a ray aimed exactly at an edge or vertex shared
+    /// by two triangles hits one of them (the default test lets about one such ray in a thousand slip
+    /// through), at some cost in speed.
+    pub fn build_robust<M: Borrow<TriangleMesh>>(meshes: &[M]) -> anyhow::Result<EmbreeScene> {
+        Self::build_with_flags(meshes, ffi::RTC_SCENE_FLAG_ROBUST)
+    }
+
+    fn build_with_flags<M: Borrow<TriangleMesh>>(
+        meshes: &[M],
+        flags: ffi::RTCSceneFlags,
+    ) -> anyhow::Result<EmbreeScene> {
         if meshes.len() >= ffi::RTC_INVALID_GEOMETRY_ID as usize {
             bail!("Embree: {} meshes exceed the geometry id range", meshes.len());
         }
@@ -55,7 +73,7 @@ impl EmbreeScene {
         let scene = SceneHandle(raw_scene);
         // SAFETY: `scene.0` is a live, uncommitted scene owned by this function.
         unsafe {
-            ffi::rtcSetSceneFlags(scene.0, ffi::RTC_SCENE_FLAG_ROBUST);
+            ffi::rtcSetSceneFlags(scene.0, flags);
             ffi::rtcSetSceneBuildQuality(scene.0, ffi::RTC_BUILD_QUALITY_HIGH);
         }
         device.check("setting scene flags")?;
@@ -74,7 +92,13 @@ impl EmbreeScene {
         device.check("committing the scene (BVH build)")?;
 
         let packet_width = choose_packet_width(&device);
-        Ok(EmbreeScene { scene, device, packet_width, mesh_count: meshes.len() })
+        Ok(EmbreeScene {
+            scene,
+            device,
+            packet_width,
+            mesh_count: meshes.len(),
+            robust: flags == ffi::RTC_SCENE_FLAG_ROBUST,
+        })
     }
 
     /// Rays per `rtcIntersectN` call used by the batch methods: 16, 8 or 4 by CPU and library
@@ -413,7 +437,11 @@ packet_kernels!(
 
 impl RayQuery for EmbreeScene {
     fn name(&self) -> &'static str {
-        "embree"
+        if self.robust {
+            "embree-robust"
+        } else {
+            "embree"
+        }
     }
     fn intersect(&self, ray: &Ray) -> Option<Hit> {
         EmbreeScene::intersect(self, ray)

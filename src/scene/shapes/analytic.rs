@@ -16,42 +16,65 @@ pub fn sphere_resolution() -> (u32, u32) {
     (SPHERE_THETA_RINGS, SPHERE_PHI_SEGMENTS)
 }
 
-/// [-1, 1]² at z = 0, normal +z, uv = ((x + 1)/2, (y + 1)/2).
+/// [-1, 1]² at z = 0, normal +z, uv = ((x + 1)/2, (y + 1)/2): Mitsuba 3's rectangle mesh, vertex
+/// for vertex and triangle for triangle. The order matters where the rectangle is coplanar with other
+/// geometry (a floor under a cube resting on it): which of two coincident faces a ray meets first is
+/// then decided by rounding in the triangle test, and the same triangles round the same way in
+/// Embree for both renderers (docs/rough-glass.md).
 pub(super) fn rectangle() -> RawMesh {
-    let corners = [(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)];
+    let corners = [(-1.0, -1.0), (1.0, -1.0), (-1.0, 1.0), (1.0, 1.0)];
     RawMesh {
         positions: corners.iter().map(|&(x, y)| Vec3::new(x, y, 0.0)).collect(),
         normals: Some(vec![Vec3::Z; 4]),
         uvs: Some(corners.iter().map(|&(x, y)| Vec2::new((x + 1.0) * 0.5, (y + 1.0) * 0.5)).collect()),
-        indices: vec![[0, 1, 2], [0, 2, 3]],
+        indices: vec![[1, 2, 0], [1, 3, 2]],
     }
 }
 
 /// [-1, 1]³ with 4 vertices per face (so normals stay per face), outward normals, and every face
-/// mapped onto [0, 1]² in uv as Mitsuba's cube does.
+/// mapped onto [0, 1]² in uv: Mitsuba 3's `cube.cpp` tables, in its order (see `rectangle`).
 pub(super) fn cube() -> RawMesh {
-    let mut m = RawMesh { normals: Some(Vec::new()), uvs: Some(Vec::new()), ..Default::default() };
-    let axes = [Vec3::X, Vec3::Y, Vec3::Z];
-    for k in 0..3 {
-        for sign in [1.0f32, -1.0] {
-            let n = axes[k] * sign;
-            // (u, v) with u × v = n, so the corners below wind counter-clockwise around n.
-            let (u, v) = if sign > 0.0 {
-                (axes[(k + 1) % 3], axes[(k + 2) % 3])
-            } else {
-                (axes[(k + 2) % 3], axes[(k + 1) % 3])
-            };
-            let base = m.positions.len() as u32;
-            for (a, b) in [(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)] {
-                m.positions.push(n + u * a + v * b);
-                m.normals.as_mut().unwrap().push(n);
-                m.uvs.as_mut().unwrap().push(Vec2::new((a + 1.0) * 0.5, (b + 1.0) * 0.5));
-            }
-            m.indices.push([base, base + 1, base + 2]);
-            m.indices.push([base, base + 2, base + 3]);
-        }
-    }
-    m
+    const P: [[f32; 3]; 24] = [
+        [1.0, -1.0, -1.0],
+        [1.0, -1.0, 1.0],
+        [-1.0, -1.0, 1.0],
+        [-1.0, -1.0, -1.0],
+        [1.0, 1.0, -1.0],
+        [-1.0, 1.0, -1.0],
+        [-1.0, 1.0, 1.0],
+        [1.0, 1.0, 1.0],
+        [1.0, -1.0, -1.0],
+        [1.0, 1.0, -1.0],
+        [1.0, 1.0, 1.0],
+        [1.0, -1.0, 1.0],
+        [1.0, -1.0, 1.0],
+        [1.0, 1.0, 1.0],
+        [-1.0, 1.0, 1.0],
+        [-1.0, -1.0, 1.0],
+        [-1.0, -1.0, 1.0],
+        [-1.0, 1.0, 1.0],
+        [-1.0, 1.0, -1.0],
+        [-1.0, -1.0, -1.0],
+        [1.0, 1.0, -1.0],
+        [1.0, -1.0, -1.0],
+        [-1.0, -1.0, -1.0],
+        [-1.0, 1.0, -1.0],
+    ];
+    const FACE_NORMALS: [[f32; 3]; 6] = [
+        [0.0, -1.0, 0.0],
+        [0.0, 1.0, 0.0],
+        [1.0, 0.0, 0.0],
+        [0.0, 0.0, 1.0],
+        [-1.0, 0.0, 0.0],
+        [0.0, 0.0, -1.0],
+    ];
+    const FACE_UVS: [[f32; 2]; 4] = [[0.0, 1.0], [1.0, 1.0], [1.0, 0.0], [0.0, 0.0]];
+    let positions = P.iter().map(|&p| Vec3::from(p)).collect();
+    let normals = (0..24).map(|i| Vec3::from(FACE_NORMALS[i / 4])).collect();
+    let uvs = (0..24).map(|i| Vec2::from(FACE_UVS[i % 4])).collect();
+    let indices =
+        (0..6u32).flat_map(|f| [[4 * f, 4 * f + 1, 4 * f + 2], [4 * f + 3, 4 * f, 4 * f + 2]]).collect();
+    RawMesh { positions, normals: Some(normals), uvs: Some(uvs), indices }
 }
 
 /// Unit disk at z = 0, normal +z, uv = (r, φ/2π). The centre is repeated per segment so that each
