@@ -271,6 +271,10 @@ fn bdpt_and_path_tracer_agree_on_every_bundled_scene() {
             !p.ends_with("caustic/scene.xml")
                 && !p.ends_with("glossy-caustic/scene.xml")
                 && !p.ends_with("fig17/scene.xml")
+                // Nested near-specular glass: the light seen through the top face comes through two
+                // α = 0.01 vertices and an α = 0.1 one, heavy-tailed for both integrators. Both are
+                // checked against Mitsuba's own error instead (tests/references.rs).
+                && !p.ends_with("nested-glass/scene.xml")
         })
         .collect();
     files.sort();

@@ -327,7 +327,11 @@ fn chi2_roughdielectric_extreme_roughness_and_nested_iors() {
                 // A lossless interface: near-specular, everything is either reflected or refracted
                 // (microfacet models lose only multiple scattering, negligible at α = 0.001).
                 if alpha <= 0.01 {
-                    assert!(o.albedo.min_element() > 0.97, "{name}: albedo {:?} of a lossless interface", o.albedo);
+                    assert!(
+                        o.albedo.min_element() > 0.97,
+                        "{name}: albedo {:?} of a lossless interface",
+                        o.albedo
+                    );
                 }
             }
         }

@@ -161,7 +161,8 @@ pub fn make_ray_sets(scene: &BenchScene, reference: &EmbreeScene, count: usize) 
                 n = -n;
             }
             let p = r.at(h.t);
-            Some((p + n * crate::geometry::ray_epsilon(p), n))
+            let mesh = &scene.meshes[h.geom_id as usize];
+            Some((p + n * crate::geometry::ray_epsilon(p, mesh.coordinate_scale(h.prim_id as usize)), n))
         })
         .collect();
     let mut sampler = Sampler::from_seed(99);

@@ -26,6 +26,13 @@ impl TriangleMesh {
         [self.positions[a as usize], self.positions[b as usize], self.positions[c as usize]]
     }
 
+    /// The largest absolute coordinate of triangle `prim`'s vertices: the scale of the rounding
+    /// error of a ray hit on it (see `ray_epsilon`).
+    pub fn coordinate_scale(&self, prim: usize) -> f32 {
+        let [a, b, c] = self.vertices(prim);
+        a.abs().max(b.abs()).max(c.abs()).max_element()
+    }
+
     pub fn area(&self, prim: usize) -> f32 {
         let [a, b, c] = self.vertices(prim);
         0.5 * (b - a).cross(c - a).length()

@@ -30,13 +30,13 @@ impl Ray {
     }
 
     /// A ray leaving the surface point `p` along the unit direction `dir`, on the exact line through
-    /// `p`: the surface is skipped by starting at t = ε (`ray_epsilon`) instead of moving the origin
-    /// off it. Path densities are recomputed from vertex positions (`PathView::density`), and a vertex
+    /// `p`: the surface is skipped by starting at t = `eps` (the point's `ray_epsilon`) instead of
+    /// moving the origin off it. Path densities are recomputed from vertex positions (`PathView::density`), and a vertex
     /// found from a displaced origin lies off the line p + t·dir: over a short edge (a glass block
     /// 2e-3 above a floor) the direction between the two positions then misses the sampled one by
     /// ε/length, several lobe widths of a near-specular BSDF, and BDPT's MIS weights go wrong.
-    pub fn leaving(p: Vec3, dir: Vec3) -> Self {
-        Ray { origin: p, dir, tmin: ray_epsilon(p), tmax: f32::INFINITY }
+    pub fn leaving(p: Vec3, dir: Vec3, eps: f32) -> Self {
+        Ray { origin: p, dir, tmin: eps, tmax: f32::INFINITY }
     }
 
     pub fn at(&self, t: f32) -> Vec3 {
@@ -85,20 +85,22 @@ impl Bounds3 {
     }
 }
 
-/// Offset for spawning rays off a surface, scaled with the magnitude of the position so that
-/// tiny and huge scenes both avoid self-intersection (pbrt-v4 §6.8.6 in spirit, without error bounds).
-pub fn ray_epsilon(p: Vec3) -> f32 {
-    let m = p.abs().max_element().max(1.0);
-    m * 1e-4
+/// How far a ray leaving a surface point `p` must start from it to miss the surface it leaves:
+/// 1e-4 of the larger of |p| and `scale`, the largest coordinate of the triangle `p` lies on (the
+/// rounding of the triangle test grows with both). Purely relative, so a scene scaled by 1e-3 or 1e3
+/// renders the same image: an absolute floor (1e-4 scene units before) was 2.5% of the size of the
+/// stability case 13 scene at 1e-3 and darkened it by 2-8% (docs/stability.md).
+pub fn ray_epsilon(p: Vec3, scale: f32) -> f32 {
+    p.abs().max_element().max(scale) * 1e-4
 }
 
-/// Offsets `p` along the geometric normal towards the side that `dir` points into.
-pub fn offset_origin(p: Vec3, ng: Vec3, dir: Vec3) -> Vec3 {
-    let eps = ray_epsilon(p);
-    if ng.dot(dir) >= 0.0 {
-        p + ng * eps
+/// Moves `p` off its surface by `offset` (the geometric normal times the point's `ray_epsilon`, or
+/// zero for points that are not on a surface), to the side that `dir` points into.
+pub fn offset_origin(p: Vec3, offset: Vec3, dir: Vec3) -> Vec3 {
+    if offset.dot(dir) >= 0.0 {
+        p + offset
     } else {
-        p - ng * eps
+        p - offset
     }
 }
 

@@ -368,7 +368,8 @@ pub fn sample_light_endpoint(scene: &Scene, u_light: f32, u_pos: Vec2, u_dir: Ve
     vertex.pdf_from_light = vertex.pdf_light_origin(scene);
     let cos = if es.ng == Vec3::ZERO { 1.0 } else { es.ng.dot(es.dir).abs() };
     let beta = es.le * (cos / pdf_emit);
-    let ray = if vertex.is_surface() { Ray::leaving(es.p, es.dir) } else { Ray::new(es.p, es.dir) };
+    let ray =
+        if vertex.is_surface() { Ray::leaving(es.p, es.dir, vertex.eps) } else { Ray::new(es.p, es.dir) };
     Some(LightEndpoint { vertex, ray, beta })
 }
 

@@ -70,9 +70,9 @@ impl PathTracer {
         }
         counters.rays += 1;
         let blocked = if ls.dist.is_finite() {
-            scene.occluded_between(si.p, si.ng, ls.p, Vec3::ZERO)
+            scene.occluded_between(si.p, si.offset(), ls.p, Vec3::ZERO)
         } else {
-            scene.occluded_dir(si.p, si.ng, ls.wi)
+            scene.occluded_dir(si.p, si.offset(), ls.wi)
         };
         if blocked {
             return Spectrum::ZERO;

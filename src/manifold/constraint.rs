@@ -564,6 +564,7 @@ mod tests {
             pdf_from_camera: 0.0,
             pdf_from_light: 0.0,
             beta: Spectrum::ONE,
+            eps: 1e-4,
         }
     }
 

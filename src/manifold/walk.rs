@@ -569,8 +569,7 @@ impl CorrectorPass {
             }
             if i == k {
                 let (near, end) = (built[k - 1], current[k]);
-                let end_normal = if end.is_surface() { end.ng } else { Vec3::ZERO };
-                match Scene::shadow_segment(near.p, near.ng, end.p, end_normal) {
+                match Scene::shadow_segment(near.p, near.offset(), end.p, end.offset()) {
                     Some(ray) => {
                         rays.push(ray);
                         self.owners.push(c);
@@ -585,7 +584,7 @@ impl CorrectorPass {
                 *status = Err(CorrectorFailure::Missed { vertex: i });
                 continue;
             };
-            let origin = if from.is_surface() { offset_origin(from.p, from.ng, dir) } else { from.p };
+            let origin = offset_origin(from.p, from.offset(), dir);
             // Aim from the offset origin: a ray parallel to from→target but displaced by the origin
             // offset (1e-4 relative) lands that far from the prediction, a noise floor the walk then
             // cannot converge below.

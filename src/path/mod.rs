@@ -88,6 +88,8 @@ pub struct Vertex {
     /// Throughput of the sub-path up to and including the edge into this vertex: its contribution
     /// divided by its density (Veach's α weights).
     pub beta: Spectrum,
+    /// How far rays leaving a surface vertex start off it (`geometry::ray_epsilon`); 0 elsewhere.
+    pub eps: f32,
 }
 
 const NO_SHAPE: usize = usize::MAX;
@@ -123,6 +125,7 @@ impl Vertex {
             pdf_from_camera: 1.0,
             pdf_from_light: 0.0,
             beta: Spectrum::ONE,
+            eps: 0.0,
         }
     }
 
@@ -146,6 +149,7 @@ impl Vertex {
             pdf_from_camera: 0.0,
             pdf_from_light: 0.0,
             beta,
+            eps: si.eps,
         }
     }
 
@@ -173,6 +177,7 @@ impl Vertex {
             pdf_from_camera: 0.0,
             pdf_from_light: pdf,
             beta,
+            eps: 0.0,
         };
         if let (Light::Area(a), Some(sp)) = (l, &es.surface) {
             v.shape = a.shape;
@@ -183,6 +188,7 @@ impl Vertex {
             v.derivatives = crate::scene::surface_derivatives(&a.mesh, sp.prim, sp.bary);
             v.frame = Frame::from_normal_tangent(sp.ns, v.derivatives.dpdu);
             v.class = ScatterClass::of(scene.shapes[a.shape].bsdf.as_ref());
+            v.eps = crate::geometry::ray_epsilon(v.p, a.mesh.coordinate_scale(sp.prim));
         }
         v
     }
@@ -203,6 +209,16 @@ impl Vertex {
 
     pub fn is_surface(&self) -> bool {
         self.shape != NO_SHAPE
+    }
+
+    /// The offset of shadow rays leaving this vertex (`geometry::offset_origin`): its geometric
+    /// normal times its `eps` on surfaces, zero elsewhere (the camera, point and infinite lights).
+    pub fn offset(&self) -> Vec3 {
+        if self.is_surface() {
+            self.ng * self.eps
+        } else {
+            Vec3::ZERO
+        }
     }
 
     /// True for Dirac light positions (point, spot): they cannot be hit by a ray.
@@ -446,11 +462,10 @@ pub fn geometry_term(a: &Vertex, b: &Vertex) -> f32 {
 
 /// True if nothing blocks the edge between two vertices.
 pub fn visible(scene: &Scene, a: &Vertex, b: &Vertex) -> bool {
-    let offset_normal = |v: &Vertex| if v.is_surface() { v.ng } else { Vec3::ZERO };
     match (a.kind, b.kind) {
         (VertexKind::InfiniteLight, VertexKind::InfiniteLight) => false,
-        (_, VertexKind::InfiniteLight) => !scene.occluded_dir(a.p, offset_normal(a), -b.ng),
-        (VertexKind::InfiniteLight, _) => !scene.occluded_dir(b.p, offset_normal(b), a.ng),
-        _ => !scene.occluded_between(a.p, offset_normal(a), b.p, offset_normal(b)),
+        (_, VertexKind::InfiniteLight) => !scene.occluded_dir(a.p, a.offset(), -b.ng),
+        (VertexKind::InfiniteLight, _) => !scene.occluded_dir(b.p, b.offset(), a.ng),
+        _ => !scene.occluded_between(a.p, a.offset(), b.p, b.offset()),
     }
 }

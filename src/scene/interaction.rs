@@ -20,6 +20,8 @@ pub struct SurfaceInteraction {
     pub prim: usize,
     /// Barycentric coordinates (b1, b2) of `p` in triangle `prim`.
     pub bary: Vec2,
+    /// How far rays leaving `p` start off the surface (`geometry::ray_epsilon`).
+    pub eps: f32,
 }
 
 /// First-order surface geometry at a point: how position and shading normal change with the surface
@@ -79,7 +81,8 @@ impl SurfaceInteraction {
         let tangent = dpdu.unwrap_or(p1 - p0);
         let frame = Frame::from_normal_tangent(ns, tangent);
         let wi = -ray.dir;
-        Some(SurfaceInteraction { p, t: hit.t, ng, frame, uv, wi, shape, prim, bary: Vec2::new(b1, b2) })
+        let eps = crate::geometry::ray_epsilon(p, p0.abs().max(p1.abs()).max(p2.abs()).max_element());
+        Some(SurfaceInteraction { p, t: hit.t, ng, frame, uv, wi, shape, prim, bary: Vec2::new(b1, b2), eps })
     }
 
     /// The derivatives of position and shading normal at this point (pbrt-v4's triangle differentials:
@@ -90,7 +93,12 @@ impl SurfaceInteraction {
 
     /// Spawns a ray leaving the surface in world direction `dir` (`Ray::leaving`).
     pub fn spawn_ray(&self, dir: Vec3) -> Ray {
-        Ray::leaving(self.p, dir)
+        Ray::leaving(self.p, dir, self.eps)
+    }
+
+    /// The offset of shadow rays leaving `p` (`geometry::offset_origin`).
+    pub fn offset(&self) -> Vec3 {
+        self.ng * self.eps
     }
 }
 

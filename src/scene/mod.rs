@@ -141,10 +141,11 @@ impl Scene {
         SurfaceInteraction::from_hit(self, ray, &hit)
     }
 
-    /// True if the segment from `a` to `b` is blocked; both ends are offset along their normals
-    /// (zero normal: no offset, for point lights and the camera).
-    pub fn occluded_between(&self, a: Vec3, na: Vec3, b: Vec3, nb: Vec3) -> bool {
-        match Self::shadow_segment(a, na, b, nb) {
+    /// True if the segment from `a` to `b` is blocked; both ends are moved off their surfaces by
+    /// their offsets (normal times `ray_epsilon`, as `SurfaceInteraction::offset` and
+    /// `Vertex::offset` give; zero for point lights and the camera).
+    pub fn occluded_between(&self, a: Vec3, offset_a: Vec3, b: Vec3, offset_b: Vec3) -> bool {
+        match Self::shadow_segment(a, offset_a, b, offset_b) {
             Some(ray) => self.accel.occluded(&ray),
             None => true,
         }
@@ -152,10 +153,10 @@ impl Scene {
 
     /// The shadow ray `occluded_between` casts, for callers that batch them; `None` for a degenerate
     /// segment (which counts as blocked).
-    pub fn shadow_segment(a: Vec3, na: Vec3, b: Vec3, nb: Vec3) -> Option<Ray> {
+    pub fn shadow_segment(a: Vec3, offset_a: Vec3, b: Vec3, offset_b: Vec3) -> Option<Ray> {
         let d = b - a;
-        let oa = if na == Vec3::ZERO { a } else { crate::geometry::offset_origin(a, na, d) };
-        let ob = if nb == Vec3::ZERO { b } else { crate::geometry::offset_origin(b, nb, -d) };
+        let oa = crate::geometry::offset_origin(a, offset_a, d);
+        let ob = crate::geometry::offset_origin(b, offset_b, -d);
         let seg = ob - oa;
         let len = seg.length();
         if !(len > 0.0) || !len.is_finite() {
@@ -164,9 +165,10 @@ impl Scene {
         Some(Ray { origin: oa, dir: seg / len, tmin: 0.0, tmax: len * (1.0 - 1e-4) })
     }
 
-    /// True if anything blocks the ray leaving `p` (normal `n`) along `dir` to infinity.
-    pub fn occluded_dir(&self, p: Vec3, n: Vec3, dir: Vec3) -> bool {
-        let o = crate::geometry::offset_origin(p, n, dir);
+    /// True if anything blocks the ray leaving `p` (moved off its surface by `offset`, as in
+    /// `occluded_between`) along `dir` to infinity.
+    pub fn occluded_dir(&self, p: Vec3, offset: Vec3, dir: Vec3) -> bool {
+        let o = crate::geometry::offset_origin(p, offset, dir);
         self.accel.occluded(&Ray::new(o, dir))
     }
 

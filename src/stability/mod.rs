@@ -9,6 +9,10 @@ mod geometry_cases;
 mod sampling_cases;
 mod scenes;
 
+/// Case 13's scene (a rough metal floor and sphere under a small light) with every length times
+/// `scale`, for checks of scale invariance outside the case.
+pub use sampling_cases::scale::scene_xml as scale_case_scene;
+
 use std::fmt::Write as _;
 use std::time::Instant;
 

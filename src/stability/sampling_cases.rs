@@ -8,7 +8,7 @@ mod endpoints;
 mod index_matched;
 mod kernel;
 mod precision;
-mod scale;
+pub(crate) mod scale;
 mod stuck;
 
 use std::sync::atomic::AtomicBool;

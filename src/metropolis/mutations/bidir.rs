@@ -236,7 +236,7 @@ fn kept_vertex_ray(
         return Err(Failure::Failed("bsdf_sample"));
     }
     let wo = v.frame.to_world(bs.wo);
-    Ok(Ray::leaving(v.p, wo))
+    Ok(Ray::leaving(v.p, wo, v.eps))
 }
 
 /// Grows `path` by exactly `count` vertices along `ray` without Russian roulette.
@@ -405,7 +405,7 @@ fn grow_split(
                     .sample_emission_direction(scene, rng.next_2d())
                     .ok_or(Failure::Failed("no_emission"))?;
                 if emitter.is_surface() {
-                    Ray::leaving(emitter.p, dir)
+                    Ray::leaving(emitter.p, dir, emitter.eps)
                 } else {
                     Ray::new(emitter.p, dir)
                 }

@@ -179,7 +179,7 @@ impl Mutation<PathState, PathContext<'_>> for ManifoldPerturbation {
             let wo = scatter_with_half_vector(&g, wi, held_h[i], eta[i], transmits(x, i))
                 .ok_or(Failure::Failed("no_direction"))?
                 .as_vec3();
-            ray = Ray::leaving(v.p, wo);
+            ray = Ray::leaving(v.p, wo, v.eps);
             y.push(v);
         }
 
@@ -255,6 +255,7 @@ mod tests {
             pdf_from_camera: 0.0,
             pdf_from_light: 0.0,
             beta: Spectrum::ONE,
+            eps: 1e-4,
         }
     }
 

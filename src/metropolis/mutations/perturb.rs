@@ -9,7 +9,7 @@
 //! has the area density p_ω · Π |cos θ_hit| / d² over its traced vertices.
 
 use crate::bsdf::TransportMode;
-use crate::geometry::{ray_epsilon, Frame, Ray, Vec2, Vec3};
+use crate::geometry::{Frame, Ray, Vec2, Vec3};
 use crate::metropolis::chain::{Failure, Proposal};
 use crate::metropolis::path_state::{PathContext, PathState};
 use crate::path::{visible, ScatterClass, Vertex, VertexKind};
@@ -80,7 +80,7 @@ pub fn angular_density(theta: f64, theta1: f64, theta2: f64) -> f64 {
 /// imaging a small light onto the floor) magnifies that shift, so retracing a chain would not land
 /// back where it started; starting on the line keeps the retrace exact up to f32 rounding.
 pub fn ray_from(v: &Vertex, dir: Vec3) -> Ray {
-    let tmin = if v.is_surface() { ray_epsilon(v.p) } else { 0.0 };
+    let tmin = if v.is_surface() { v.eps } else { 0.0 };
     Ray { origin: v.p, dir, tmin, tmax: f32::INFINITY }
 }
 

@@ -318,7 +318,7 @@ pub fn pinned(scene: &Scene, p: Vec3) -> Vertex {
 /// The surface vertex where the ray from `from` towards `aim` first hits the scene.
 pub fn hit_towards(scene: &Scene, from: &Vertex, aim: Vec3) -> Option<Vertex> {
     let dir = (aim - from.p).try_normalize()?;
-    let origin = if from.is_surface() { offset_origin(from.p, from.ng, dir) } else { from.p };
+    let origin = offset_origin(from.p, from.offset(), dir);
     let si = scene.intersect(&Ray::new(origin, dir))?;
     Some(Vertex::surface(scene, &si, Spectrum::ONE))
 }
