@@ -259,3 +259,97 @@ fn bdpt_caustic_matches_mitsuba_light_tracer() {
     assert!(cmp.chi2_per_dof < runs_threshold(), "caustic: chi2/dof {:.2}", cmp.chi2_per_dof);
     assert!((cmp.flux_ratio - 1.0).abs() < 0.03, "caustic: flux ratio {:.4}", cmp.flux_ratio);
 }
+
+/// Mitsuba's own error on a reference scene, measured by scripts/make-mitsuba-references.py:
+/// independent Mitsuba renders at `spp` against the reference, in `block`-pixel block means.
+struct SelfError {
+    spp: u32,
+    block: usize,
+    mean_block_rel_mse: f64,
+}
+
+fn mitsuba_self_error(name: &str) -> SelfError {
+    let path = root().join(format!("tests/references/mitsuba/{name}.json"));
+    let meta: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+    let e = &meta["self_error"];
+    let runs: Vec<f64> = e["block_rel_mse"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+    SelfError {
+        spp: e["spp"].as_u64().unwrap() as u32,
+        block: e["block"].as_u64().unwrap() as usize,
+        mean_block_rel_mse: runs.iter().sum::<f64>() / runs.len() as f64,
+    }
+}
+
+/// Heavy-tailed scenes (light reaching the camera through near-specular glass) defeat the χ² test:
+/// a render's own variance estimate misses its rare bright paths. There hslt is called right when its
+/// block error is no worse than 1.5× Mitsuba's own at the same sample count (issue 28's tolerance on
+/// the path tracer). The runs are averaged first: unbiased noise then falls by their number while a
+/// bias does not, which is what makes the test able to fail on a bias (the top face 1.2-1.7× too
+/// bright, the failure issue 28 reported, gives 6x6-block relMSE above 1e-2 at any sample count).
+fn check_no_worse_than_mitsuba(
+    name: &str,
+    kind: IntegratorKind,
+    runs: u64,
+    spp: u32,
+    defines: &[(&str, &str)],
+) {
+    let e = mitsuba_self_error(name);
+    let s = load_scene(&root().join(format!("scenes/{name}/scene.xml")), defines).unwrap();
+    let reference = read_image(&root().join(format!("tests/references/mitsuba/{name}.exr")), false).unwrap();
+    let mut sum: Option<hslt::image::ImageBuf> = None;
+    for run in 0..runs {
+        let (img, stats) = render_scene(&s, kind, spp, 500 + run);
+        assert_eq!(stats.invalid_samples, 0, "{name}: NaN/Inf samples");
+        sum = Some(match sum {
+            None => img,
+            Some(mut acc) => {
+                acc.data.iter_mut().zip(&img.data).for_each(|(a, b)| *a += b);
+                acc
+            }
+        });
+    }
+    let mut mean = sum.unwrap();
+    mean.data.iter_mut().for_each(|v| *v /= runs as f32);
+    let blocks = |img| hslt::report::metrics::block_means(img, e.block);
+    let ours = hslt::report::metrics::compute(&blocks(&mean), &blocks(&reference), 0.01).unwrap().rel_mse;
+    // Mitsuba's error scaled to our total sample count (noise variance falls as 1/spp).
+    let total = runs as f64 * spp as f64;
+    let mitsuba = e.mean_block_rel_mse * e.spp as f64 / total;
+    let flux = mean.data.iter().map(|&v| v as f64).sum::<f64>()
+        / reference.data.iter().map(|&v| v as f64).sum::<f64>();
+    eprintln!(
+        "{name} {kind:?}, {runs} x {spp} spp: block relMSE {ours:.2e}, Mitsuba's own at that count {mitsuba:.2e}, \
+         flux ratio {flux:.4}"
+    );
+    assert!(
+        ours <= 1.5 * mitsuba,
+        "{name} {kind:?}: block relMSE {ours:.2e} > 1.5 x Mitsuba's {mitsuba:.2e}"
+    );
+}
+
+#[test]
+fn nested_rough_glass_no_worse_than_mitsuba() {
+    // Issue 28's scene: near-specular glass (Beckmann α = 0.01, ior 1.5) holding rougher tinted water
+    // (α = 0.1, 1.33 inside 1.5) over a diffuse floor.
+    check_no_worse_than_mitsuba(
+        "nested-glass",
+        IntegratorKind::Path,
+        2,
+        4096,
+        &[("resx", "48"), ("resy", "36")],
+    );
+}
+
+#[test]
+fn bdpt_nested_rough_glass_no_worse_than_mitsuba() {
+    // BDPT resolves the floor caustic under the glass but not the light seen through the top face
+    // (paths through two near-specular vertices and a glossy one), so at equal samples it is about
+    // as noisy as Mitsuba's path tracer there.
+    check_no_worse_than_mitsuba(
+        "nested-glass",
+        IntegratorKind::Bdpt,
+        2,
+        2048,
+        &[("resx", "48"), ("resy", "36")],
+    );
+}
