@@ -182,3 +182,10 @@ fn jewelry() {
 fn caustic_seen_in_a_mirror() {
     converges_to_bdpt("scenes/mirror-caustic/scene.xml", &[], 128, 512);
 }
+
+#[test]
+fn spot_light_alone() {
+    // Every light path starts at a Dirac position: the path-space large step and the bidirectional
+    // mutation must regenerate such emitters (tests/data/metropolis/spot-light.xml).
+    converges_to_bdpt("tests/data/metropolis/spot-light.xml", &[], 64, 256);
+}

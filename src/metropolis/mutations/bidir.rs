@@ -5,6 +5,11 @@
 //! When the emitter end is regenerated, the split with no light-side vertex is an eye walk that hits
 //! an emitter itself (no connection edge): without it, paths whose emitter follows a Dirac vertex (a
 //! light seen through glass or in a mirror) could never be proposed, since no connection can end there.
+//! Dirac emitters (point and spot lights) are regenerated like the others, with the Dirac convention
+//! for their position (density = the light's selection probability, as in BDPT); rays cannot hit them,
+//! so only splits with a light-side vertex make such paths. (They were once refused, which left the
+//! large step unable to make any path of a scene lit by a spot light, and its estimate of b, which
+//! counts failed proposals as zero, falling towards zero: fig17 rendered 0.1% of its indirect light.)
 
 use crate::bsdf::{BsdfContext, TransportMode};
 use crate::geometry::{Ray, Vec2};
@@ -142,11 +147,7 @@ fn split_density(scene: &Scene, to: &[Vertex], pdfs: &PathPdfs, a: usize, added:
     let n = to.len();
     let c = a + added;
     let suffix_empty = c == n;
-    if to[a].delta
-        || (!suffix_empty && dirac_scatter(scene, &to[c]))
-        || (suffix_empty && to[n - 1].is_delta_light(scene))
-        || (added < 2 && suffix_empty)
-    {
+    if to[a].delta || (!suffix_empty && dirac_scatter(scene, &to[c])) || (added < 2 && suffix_empty) {
         return 0.0;
     }
     let kept_environment = !suffix_empty && c == n - 1 && to[n - 1].kind == VertexKind::InfiniteLight;
@@ -193,9 +194,12 @@ fn same_vertex(x: &Vertex, y: &Vertex) -> bool {
     x.kind == y.kind && x.p == y.p
 }
 
-/// T(x→y) with the kept prefix and suffix recovered by comparing the paths (new vertices never
-/// coincide with deleted ones except on a set of measure zero), for checks from outside.
-pub fn transition_density_between(scene: &Scene, bdpt: &Bdpt, x: &[Vertex], y: &[Vertex]) -> f64 {
+/// T(x→y) with the kept prefix and suffix recovered by comparing the paths, for checks from outside:
+/// one density per way the mutation could have made y from x. New vertices never coincide with
+/// deleted ones except on a set of measure zero, with one exception: a regenerated Dirac emitter (a
+/// point or spot light) is the same point as the deleted one. When the paths share only that emitter
+/// at their ends, the second entry is the density with the emitter regenerated (empty suffix).
+pub fn transition_densities_between(scene: &Scene, bdpt: &Bdpt, x: &[Vertex], y: &[Vertex]) -> Vec<f64> {
     let shorter = x.len().min(y.len());
     let prefix = x.iter().zip(y).take_while(|(u, v)| same_vertex(u, v)).count().min(shorter);
     let suffix = x
@@ -205,13 +209,21 @@ pub fn transition_density_between(scene: &Scene, bdpt: &Bdpt, x: &[Vertex], y: &
         .take_while(|(u, v)| same_vertex(u, v))
         .count()
         .min(shorter - prefix);
-    if prefix == 0 {
-        return 0.0;
+    let density = |prefix: usize, suffix: usize| {
+        if prefix == 0 {
+            return 0.0;
+        }
+        let a = prefix - 1;
+        let (deleted, added) = (x.len() - suffix - a, y.len() - suffix - a);
+        transition_density(scene, bdpt, x.len() - 1, y, a, deleted, added)
+    };
+    let mut densities = vec![density(prefix, suffix)];
+    let (last_x, last_y) = (&x[x.len() - 1], &y[y.len() - 1]);
+    if same_vertex(last_x, last_y) && last_x.is_delta_light(scene) && (suffix == 1 || prefix == shorter) {
+        // The shared emitter may have been regenerated: it belongs to neither kept part.
+        densities.push(density(prefix.min(shorter - 1), 0));
     }
-    let a = prefix - 1;
-    let deleted = x.len() - suffix - a;
-    let added = y.len() - suffix - a;
-    transition_density(scene, bdpt, x.len() - 1, y, a, deleted, added)
+    densities
 }
 
 /// A direction sampled by the BSDF at a kept vertex `v` (with `wi` towards `towards`), as the first
@@ -316,9 +328,6 @@ fn check_kept_ends(scene: &Scene, x: &[Vertex], a: usize, b: usize, added: usize
     if x[a].delta || (!suffix_empty && dirac_scatter(scene, &x[b])) {
         return Err(Failure::Failed("dirac_kept_vertex"));
     }
-    if suffix_empty && x[k].is_delta_light(scene) {
-        return Err(Failure::Failed("dirac_light"));
-    }
     // With the emitter regenerated, s = 0 means the eye walk must hit an emitter itself: the only
     // way to build paths whose light end follows a Dirac vertex (a light seen through glass).
     if added == 0 || (suffix_empty && added < 2) {
@@ -388,10 +397,6 @@ fn grow_split(
         let (u_light, u_pos, u_dir) = (rng.next_1d(), rng.next_2d(), rng.next_2d());
         let start =
             sample_light_endpoint(scene, u_light, u_pos, u_dir).ok_or(Failure::Failed("no_emission"))?;
-        if start.vertex.is_delta_light(scene) {
-            // Dirac emitters are never regenerated (see `regrowth_density`).
-            return Err(Failure::Failed("dirac_light"));
-        }
         light = vec![start.vertex];
         if s > 1 {
             walk_exactly(ctx, &mut light, start.ray, TransportMode::Importance, s - 1, rng)?;
