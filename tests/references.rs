@@ -142,6 +142,32 @@ fn shared_veach_mis_matches_tungsten_at_its_resolution() {
 }
 
 #[test]
+fn shared_veach_bidir_matches_tungsten_flux() {
+    // As with veach-mis, the XML port says max_depth 7 where Tungsten's render corresponds to 6 in
+    // Mitsuba's convention: at 7 Mitsuba 3.9.1 is 1.1% brighter than the Tungsten image and so were we
+    // (BDPT 1.4%, the "bias" docs/benchmarks.md once recorded); at 6 Mitsuba gives 0.9998, and BDPT
+    // 1.0001, PT 1.0001. The Tungsten image is 1024² with a tent filter; the flux (image mean) does not
+    // depend on the resolution, so this renders 64² and compares means to ±0.5% (issue 28), where the
+    // seed-to-seed spread is 0.1% (BDPT, 256 spp) and 0.2% (PT, 2048 spp).
+    let dir = shared_scene("veach-bidir");
+    let reference = read_image(&dir.join("TungstenRender.exr"), false).unwrap();
+    let mean = |img: &hslt::image::ImageBuf| {
+        let c = img.channels;
+        let sum: f64 = img.data.chunks(c).map(|p| p[..3].iter().map(|&v| v as f64).sum::<f64>()).sum();
+        sum / (3 * img.width * img.height) as f64
+    };
+    let s =
+        load_scene(&dir.join("scene.xml"), &[("resx", "64"), ("resy", "64"), ("max_depth", "6")]).unwrap();
+    for (kind, spp) in [(IntegratorKind::Bdpt, 256), (IntegratorKind::Path, 2048)] {
+        let (img, stats) = render_scene(&s, kind, spp, 3);
+        assert_eq!(stats.invalid_samples, 0);
+        let ratio = mean(&img) / mean(&reference);
+        eprintln!("veach-bidir {kind:?}: flux ratio to Tungsten {ratio:.4}");
+        assert!((ratio - 1.0).abs() < 0.005, "veach-bidir {kind:?}: flux ratio to Tungsten {ratio:.4}");
+    }
+}
+
+#[test]
 fn all_shared_scenes_load_and_render() {
     // veach-ajar's textures are JPEG files, which only the OpenImageIO build reads.
     let with_jpeg = hslt::image::oiio_version().is_some();
