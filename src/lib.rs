@@ -16,6 +16,8 @@ pub mod lights;
 pub mod manifold;
 pub mod metropolis;
 pub mod path;
+pub mod props;
+pub mod registry;
 pub mod render;
 pub mod report;
 pub mod sampling;

@@ -3,7 +3,7 @@
 
 use hslt::accel::{build, AccelKind, BvhScene, EmbreeScene};
 use hslt::geometry::{Ray, TriangleMesh, Vec3};
-use hslt::integrators::IntegratorKind;
+use hslt::registry::IntegratorKind;
 use hslt::scene::{LoadOptions, Scene};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg32;

@@ -6,7 +6,7 @@
 
 use hslt::cli::{load_scene, render_scene};
 use hslt::image::ImageBuf;
-use hslt::integrators::IntegratorKind;
+use hslt::registry::IntegratorKind;
 use std::path::Path;
 
 /// Mean and standard error of the mean over all channels of all pixels.

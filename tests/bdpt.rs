@@ -11,8 +11,9 @@ mod common;
 
 use hslt::cli::load_scene;
 use hslt::geometry::Vec2;
-use hslt::integrators::{Bdpt, DepthLimits, SampleCounters};
+use hslt::integrators::Bdpt;
 use hslt::path::{mis_weight, mis_weight_limited, MisHeuristic, PathView, VertexKind};
+use hslt::render::{DepthLimits, SampleCounters};
 use hslt::sampling::Sampler;
 use hslt::scene::Scene;
 use std::path::Path;
@@ -207,9 +208,9 @@ fn strategy_layers_add_up_to_the_image() {
     // With max_depth 3 every strategy has a layer, so the layers must sum to the combined image.
     let s = scene("scenes/cornell-box/scene.xml", &[("resx", "24"), ("resy", "24"), ("max_depth", "3")]);
     let mut settings =
-        hslt::integrators::IntegratorSettings::new(DepthLimits { max_depth: 3, rr_depth: 5 }, false);
+        hslt::registry::IntegratorSettings::new(DepthLimits { max_depth: 3, rr_depth: 5 }, false);
     settings.bdpt_strategies = Some(3);
-    let integrator = hslt::integrators::make_with(hslt::integrators::IntegratorKind::Bdpt, &settings);
+    let integrator = hslt::registry::make_with(hslt::registry::IntegratorKind::Bdpt, &settings);
     let options = hslt::render::RenderOptions { spp: Some(8), seed: 3, ..Default::default() };
     let out = integrator.render(&s, &options, &std::sync::atomic::AtomicBool::new(false));
     let image = out.film.to_image();
@@ -241,7 +242,7 @@ fn bdpt_images_do_not_depend_on_thread_count() {
     let s = scene("scenes/cornell-box/scene.xml", &[("resx", "32"), ("resy", "32")]);
     let render = |threads: usize| {
         let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
-        pool.install(|| hslt::cli::render_scene(&s, hslt::integrators::IntegratorKind::Bdpt, 4, 9).0.data)
+        pool.install(|| hslt::cli::render_scene(&s, hslt::registry::IntegratorKind::Bdpt, 4, 9).0.data)
     };
     let one = render(1);
     assert_eq!(one, render(2), "1 vs 2 threads");
@@ -285,10 +286,10 @@ fn bdpt_and_path_tracer_agree_on_every_bundled_scene() {
         let s = load_scene(&file, &[]).unwrap_or_else(|e| panic!("{}: {e:#}", file.display()));
         let s = small(s, &file);
         let (pt_film, stats) =
-            hslt::cli::render_scene_film(&s, hslt::integrators::IntegratorKind::Path, 2048, 77);
+            hslt::cli::render_scene_film(&s, hslt::registry::IntegratorKind::Path, 2048, 77);
         assert_eq!(stats.invalid_samples, 0, "{}: pt NaN/Inf", file.display());
         let (bdpt, bdpt_var) =
-            common::render_runs(&s, hslt::integrators::IntegratorKind::Bdpt, 32, runs, (4, 4));
+            common::render_runs(&s, hslt::registry::IntegratorKind::Bdpt, 32, runs, (4, 4));
         let mut var = pt_film.variance_image();
         for (v, b) in var.data.iter_mut().zip(&bdpt_var.data) {
             *v += b;

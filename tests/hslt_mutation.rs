@@ -3,7 +3,6 @@
 //! that run only this mutation reproduce BDPT, and stiff input is rejected and counted, never NaN.
 
 use hslt::cli::load_scene;
-use hslt::integrators::{make_with, DepthLimits, IntegratorKind, IntegratorSettings};
 use hslt::manifold::{path_constraints, path_etas, path_geometry, path_geometry_in_chart};
 use hslt::metropolis::mutations::halfvector::{
     applicable, relative_mismatch, walk_from, HalfVectorMutation, HalfVectorParams, TraceDirection,
@@ -13,7 +12,8 @@ use hslt::metropolis::{
     Chain, Failure, MltSettings, Mutation, MutationKind, MutationStats, PathContext, PathMlt, PathSeeds,
     PathState, TargetFunction, WeightedMutation,
 };
-use hslt::render::RenderOptions;
+use hslt::registry::{make_with, IntegratorKind, IntegratorSettings};
+use hslt::render::{DepthLimits, RenderOptions};
 use hslt::sampling::Sampler;
 use hslt::scene::Scene;
 use std::path::Path;
@@ -372,11 +372,11 @@ fn light_traced_walk_reaches_the_camera_traced_solution() {
     );
 }
 
-fn meta<'a>(out: &'a hslt::integrators::RenderOutput, key: &str) -> Option<&'a str> {
+fn meta<'a>(out: &'a hslt::render::RenderOutput, key: &str) -> Option<&'a str> {
     out.metadata.iter().find(|(k, _)| k == key).map(|(_, v)| v.as_str())
 }
 
-fn meta_u64(out: &hslt::integrators::RenderOutput, key: &str) -> u64 {
+fn meta_u64(out: &hslt::render::RenderOutput, key: &str) -> u64 {
     meta(out, key).map_or(0, |v| v.parse().unwrap())
 }
 
@@ -399,7 +399,7 @@ fn the_tracing_direction_is_recorded_and_followed() {
         assert_eq!(TraceDirection::parse(direction.name()), Ok(direction));
         let integrator = hslt_only(&s, 256, HalfVectorParams { direction, ..HalfVectorParams::default() });
         let options = RenderOptions { spp: Some(8), seed: 5, ..Default::default() };
-        let out = hslt::integrators::Integrator::render(&integrator, &s, &options, &AtomicBool::new(false));
+        let out = hslt::render::Integrator::render(&integrator, &s, &options, &AtomicBool::new(false));
         assert_eq!(meta(&out, "hslt.mlt.hslt.direction"), Some(direction.name()));
         let walks: f64 = meta(&out, "hslt.mlt.hslt.mean.converged_walks").unwrap().parse().unwrap();
         let from_light: f64 =
@@ -433,8 +433,7 @@ fn check_against_bdpt(rel: &str, defines: &[(&str, &str)]) {
         .map(|seed| {
             let integrator = hslt_only(&s, 8192, HalfVectorParams::default());
             let options = RenderOptions { spp: Some(128), seed: 40 + seed, ..Default::default() };
-            let out =
-                hslt::integrators::Integrator::render(&integrator, &s, &options, &AtomicBool::new(false));
+            let out = hslt::render::Integrator::render(&integrator, &s, &options, &AtomicBool::new(false));
             let img = out.film.to_image();
             assert!(img.data.iter().all(|v| v.is_finite() && *v >= 0.0));
             assert_eq!(out.stats.invalid_samples, 0);

@@ -175,7 +175,7 @@ fn walks_in_flight_match_single_walks_bit_for_bit_on_jewelry() {
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/jewelry/scene.xml");
     let defines = [("resx", "32"), ("resy", "24"), ("max_depth", "5")];
     let scene = hslt::cli::load_scene(&path, &defines).unwrap();
-    let limits = hslt::integrators::DepthLimits {
+    let limits = hslt::render::DepthLimits {
         max_depth: scene.integrator.max_depth,
         rr_depth: scene.integrator.rr_depth,
     };

@@ -5,7 +5,6 @@
 use glam::{DMat2, DVec2};
 use hslt::cli::load_scene;
 use hslt::image::ImageBuf;
-use hslt::integrators::Integrator;
 use hslt::manifold::{
     direction_per_half_vector, half_vector_constraint, path_constraints, path_etas, path_geometry, walk,
     LocalGeometry, WalkSettings,
@@ -14,7 +13,7 @@ use hslt::metropolis::{
     ManifoldPerturbation, MltSettings, Mutation, MutationKind, MutationStats, PathContext, PathMlt,
     PathSeeds, TargetFunction,
 };
-use hslt::render::RenderOptions;
+use hslt::render::{Integrator, RenderOptions};
 use hslt::sampling::Sampler;
 use hslt::scene::Scene;
 use std::path::Path;
@@ -276,7 +275,7 @@ fn manifold_only_chains_reproduce_bdpt() {
             quadrant_means(&render_mlt(&scene, vec![(MutationKind::Manifold, 1.0)], 5.0, 16, 256, seed))
         })
         .collect();
-    let (reference, _) = hslt::cli::render_scene(&scene, hslt::integrators::IntegratorKind::Bdpt, 1024, 77);
+    let (reference, _) = hslt::cli::render_scene(&scene, hslt::registry::IntegratorKind::Bdpt, 1024, 77);
     let reference = quadrant_means(&reference);
     for q in 0..4 {
         let values: Vec<f64> = runs.iter().map(|r| r[q]).collect();

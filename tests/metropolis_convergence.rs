@@ -19,9 +19,9 @@
 
 use hslt::cli::{load_scene, render_scene};
 use hslt::image::ImageBuf;
-use hslt::integrators::{make_with, DepthLimits, IntegratorKind, IntegratorSettings};
 use hslt::metropolis::direct::DirectPass;
-use hslt::render::RenderOptions;
+use hslt::registry::{make_with, IntegratorKind, IntegratorSettings};
+use hslt::render::{DepthLimits, RenderOptions};
 use std::path::Path;
 use std::sync::atomic::AtomicBool;
 

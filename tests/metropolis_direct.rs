@@ -4,9 +4,9 @@
 //! against BDPT on every bundled scene).
 
 use hslt::cli::load_scene;
-use hslt::integrators::{make_with, DepthLimits, IntegratorKind, IntegratorSettings, RenderOutput};
 use hslt::metropolis::direct::DirectPass;
-use hslt::render::RenderOptions;
+use hslt::registry::{make_with, IntegratorKind, IntegratorSettings};
+use hslt::render::{DepthLimits, RenderOptions, RenderOutput};
 use hslt::scene::Scene;
 use std::path::Path;
 use std::sync::atomic::AtomicBool;

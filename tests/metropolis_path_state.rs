@@ -4,12 +4,11 @@
 //! weighted contributions.
 
 use hslt::cli::load_scene;
-use hslt::integrators::Integrator;
-use hslt::integrators::{Bdpt, DepthLimits};
+use hslt::integrators::Bdpt;
 use hslt::metropolis::pssmlt::PssContext;
 use hslt::metropolis::{MltSettings, MutationKind, PathMlt, PathSeeds, PathState, Pssmlt, TargetFunction};
 use hslt::path::{mis_weight, MisHeuristic, PathView, Vertex};
-use hslt::render::RenderOptions;
+use hslt::render::{DepthLimits, Integrator, RenderOptions};
 use hslt::sampling::Sampler;
 use hslt::scene::Scene;
 use hslt::spectrum::luminance;

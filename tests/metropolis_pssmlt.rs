@@ -7,13 +7,13 @@
 //! seeds) or independent chains, which contains every source of error including the normalisation b.
 
 use hslt::cli::load_scene;
-use hslt::integrators::{make_with, DepthLimits, IntegratorKind, IntegratorSettings, RenderOutput};
 use hslt::metropolis::chain::OUTSIDE_SUPPORT;
 use hslt::metropolis::{
     Chain, ChainState, Failure, Mutation, MutationStats, Proposal, PssSampler, PssmltSettings,
     TargetFunction, WeightedMutation,
 };
-use hslt::render::RenderOptions;
+use hslt::registry::{make_with, IntegratorKind, IntegratorSettings};
+use hslt::render::{DepthLimits, RenderOptions, RenderOutput};
 use hslt::sampling::{SampleSource, Sampler};
 use hslt::scene::Scene;
 use hslt::spectrum::Spectrum;

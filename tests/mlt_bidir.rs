@@ -7,14 +7,13 @@
 //! independent runs (different seeds), never the spread of pixels within one image.
 
 use hslt::cli::load_scene;
-use hslt::integrators::{Integrator, RenderOutput, TiledRenderer};
 use hslt::metropolis::mutations::bidir::{transition_densities_between, BidirectionalMutation};
 use hslt::metropolis::mutations::largestep::{LargeStep, StrategyPmf};
 use hslt::metropolis::{
     Chain, Failure, MltSettings, Mutation, MutationKind, MutationStats, PathContext, PathMlt, PathSeeds,
     PathState, TargetFunction, WeightedMutation,
 };
-use hslt::render::RenderOptions;
+use hslt::render::{Integrator, RenderOptions, RenderOutput, TiledRenderer};
 use hslt::sampling::Sampler;
 use hslt::scene::Scene;
 use hslt::spectrum::luminance;

@@ -9,7 +9,7 @@
 use hslt::cli::load_scene;
 use hslt::geometry::Vec2;
 use hslt::image::ImageBuf;
-use hslt::integrators::{make_with, Bdpt, DepthLimits, Integrator, IntegratorKind, IntegratorSettings};
+use hslt::integrators::Bdpt;
 use hslt::metropolis::mutations::caustic::CausticPerturbation;
 use hslt::metropolis::mutations::hvcaustic::HalfVectorCausticPerturbation;
 use hslt::metropolis::mutations::hvlens::{self, HalfVectorLensPerturbation};
@@ -20,7 +20,8 @@ use hslt::metropolis::{
     Failure, MltSettings, Mutation, MutationKind, MutationSettings, MutationStats, PathContext, PathMlt,
     PathSeeds, PathState, Proposal, TargetFunction,
 };
-use hslt::render::RenderOptions;
+use hslt::registry::{make_with, IntegratorKind, IntegratorSettings};
+use hslt::render::{DepthLimits, Integrator, RenderOptions};
 use hslt::sampling::Sampler;
 use hslt::scene::Scene;
 use std::path::Path;
@@ -943,7 +944,7 @@ fn blocks(img: &ImageBuf) -> Vec<f64> {
     out
 }
 
-fn meta(out: &hslt::integrators::RenderOutput, key: &str) -> String {
+fn meta(out: &hslt::render::RenderOutput, key: &str) -> String {
     out.metadata.iter().find(|(k, _)| k == key).map(|(_, v)| v.clone()).unwrap_or_default()
 }
 

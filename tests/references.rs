@@ -10,7 +10,7 @@ mod common;
 
 use hslt::cli::{load_scene, render_scene, render_scene_film};
 use hslt::image::read_image;
-use hslt::integrators::IntegratorKind;
+use hslt::registry::IntegratorKind;
 use std::path::{Path, PathBuf};
 
 fn root() -> PathBuf {

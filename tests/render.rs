@@ -2,7 +2,7 @@
 //! threads or on scheduling; time budgets stop the render.
 
 use hslt::cli::{load_scene, render_scene};
-use hslt::integrators::IntegratorKind;
+use hslt::registry::IntegratorKind;
 use std::path::Path;
 
 fn cornell() -> hslt::scene::Scene {
@@ -29,9 +29,9 @@ fn same_seed_same_image_for_any_thread_count() {
 #[test]
 fn time_budget_stops_the_render() {
     let scene = cornell();
-    let integrator = hslt::integrators::make(
+    let integrator = hslt::registry::make(
         IntegratorKind::Path,
-        hslt::integrators::DepthLimits { max_depth: -1, rr_depth: 5 },
+        hslt::render::DepthLimits { max_depth: -1, rr_depth: 5 },
         false,
     );
     let options = hslt::render::RenderOptions {

@@ -2,7 +2,7 @@
 //! written, the CSV has one monotone time series per integrator, the error falls from the first
 //! snapshot to the last, and a reference of the wrong size is refused with a clear error.
 
-use hslt::integrators::IntegratorKind;
+use hslt::registry::IntegratorKind;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 

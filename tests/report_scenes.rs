@@ -1,7 +1,7 @@
 //! The scenes authored for the paper's experiments load, take their parameters, and render to a
 //! finite image with light in it (at a tiny size, with the path tracer).
 
-use hslt::integrators::IntegratorKind;
+use hslt::registry::IntegratorKind;
 use std::path::Path;
 
 fn render(scene: &str, defines: &[(&str, &str)]) -> hslt::image::ImageBuf {

@@ -1,8 +1,8 @@
 //! The snapshot hook of the render loop: called after the pass during which each requested time
 //! passed, once per time at most, and each snapshot is exactly the image a render stopped there gives.
 
-use hslt::integrators::{self, DepthLimits, IntegratorKind};
-use hslt::render::{RenderOptions, Snapshot, SnapshotHook};
+use hslt::registry::{self, IntegratorKind};
+use hslt::render::{DepthLimits, RenderOptions, Snapshot, SnapshotHook};
 use std::path::Path;
 use std::sync::atomic::AtomicBool;
 use std::sync::{Arc, Mutex};
@@ -22,7 +22,7 @@ fn snapshots_arrive_after_their_times_and_match_a_render_of_that_many_samples() 
     let _turn = TIMED.lock().unwrap_or_else(|e| e.into_inner());
     let scene = scene();
     let limits = DepthLimits { max_depth: scene.integrator.max_depth, rr_depth: scene.integrator.rr_depth };
-    let integrator = integrators::make(IntegratorKind::Path, limits, false);
+    let integrator = registry::make(IntegratorKind::Path, limits, false);
     let taken: Arc<Mutex<Vec<Snapshot>>> = Arc::default();
     let sink = {
         let taken = taken.clone();
@@ -69,7 +69,7 @@ fn snapshots_arrive_after_their_times_and_match_a_render_of_that_many_samples() 
 fn first_sample_continues_the_streams() {
     let scene = scene();
     let limits = DepthLimits { max_depth: scene.integrator.max_depth, rr_depth: scene.integrator.rr_depth };
-    let integrator = integrators::make(IntegratorKind::Path, limits, false);
+    let integrator = registry::make(IntegratorKind::Path, limits, false);
     let never = AtomicBool::new(false);
     let render = |spp, first_sample| {
         let options = RenderOptions { spp: Some(spp), seed: 9, first_sample, ..Default::default() };
@@ -91,10 +91,10 @@ fn metropolis_chains_take_snapshots_between_rounds() {
     let _turn = TIMED.lock().unwrap_or_else(|e| e.into_inner());
     let scene = scene();
     let limits = DepthLimits { max_depth: scene.integrator.max_depth, rr_depth: scene.integrator.rr_depth };
-    let mut settings = integrators::IntegratorSettings::new(limits, false);
+    let mut settings = registry::IntegratorSettings::new(limits, false);
     settings.pssmlt.seed_paths = Some(4096);
     settings.pssmlt.chains = 8;
-    let integrator = integrators::make_with(IntegratorKind::Pssmlt, &settings);
+    let integrator = registry::make_with(IntegratorKind::Pssmlt, &settings);
     let taken: Arc<Mutex<Vec<Snapshot>>> = Arc::default();
     let sink = {
         let taken = taken.clone();

@@ -6,7 +6,7 @@
 //! test holds them to ±0.5%.
 
 use hslt::cli::render_scene;
-use hslt::integrators::IntegratorKind;
+use hslt::registry::IntegratorKind;
 use hslt::scene::{LoadOptions, Scene};
 use std::path::Path;
 

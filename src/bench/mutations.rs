@@ -6,13 +6,14 @@
 
 use crate::accel::{Hit, RayQuery};
 use crate::geometry::Ray;
-use crate::integrators::{Bdpt, DepthLimits};
+use crate::integrators::Bdpt;
 use crate::manifold::{walk_many, walk_many_through, WalkJob, WalkSettings};
 use crate::metropolis::mutations::halfvector::{
     applicable, HalfVectorMutation, HalfVectorParams, TraceDirection,
 };
 use crate::metropolis::{Failure, Mutation, MutationStats, PathContext, PathSeeds, PathState};
 use crate::path::Vertex;
+use crate::render::DepthLimits;
 use crate::sampling::Sampler;
 use crate::scene::Scene;
 use glam::DVec2;

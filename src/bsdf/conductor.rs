@@ -11,7 +11,7 @@
 
 use super::fresnel::{fresnel_conductor, reflect_local};
 use super::{finish_sample, read_conductor_ior, Bsdf, BsdfContext, BsdfLoader, BsdfLobe, BsdfSample};
-use crate::scene::{Props, SceneError};
+use crate::props::{Props, SceneError};
 use crate::spectrum::Spectrum;
 use crate::texture::Texture;
 use glam::{Vec2, Vec3};

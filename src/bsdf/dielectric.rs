@@ -13,7 +13,7 @@
 
 use super::fresnel::{fresnel_dielectric, reflect_local};
 use super::{finish_sample, read_eta, Bsdf, BsdfContext, BsdfLoader, BsdfLobe, BsdfSample, TransportMode};
-use crate::scene::{Props, SceneError};
+use crate::props::{Props, SceneError};
 use crate::spectrum::Spectrum;
 use crate::texture::Texture;
 use glam::{Vec2, Vec3};

@@ -8,8 +8,8 @@
 //! for two-sided surfaces. Sampling is cosine-weighted, so the weight is exactly ρ.
 
 use super::{finish_sample, sanitize, Bsdf, BsdfContext, BsdfLoader, BsdfLobe, BsdfSample};
+use crate::props::{Props, SceneError};
 use crate::sampling::square_to_cosine_hemisphere;
-use crate::scene::{Props, SceneError};
 use crate::spectrum::Spectrum;
 use crate::texture::Texture;
 use glam::{Vec2, Vec3};

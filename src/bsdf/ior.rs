@@ -3,7 +3,7 @@
 //! spectral η and k curves (Palik et al. via pbrt/Luxpop) against the CIE matching functions; the RGB
 //! triples here are that same reduction as tabulated in Tungsten (`ComplexIorData.hpp`).
 
-use crate::scene::{PropValue, Props, SceneError};
+use crate::props::{PropValue, Props, SceneError};
 use crate::spectrum::Spectrum;
 use glam::Vec3;
 

@@ -20,7 +20,7 @@ pub mod roughdielectric;
 pub mod roughplastic;
 pub mod twosided;
 
-use crate::scene::{PropValue, Props, SceneError};
+use crate::props::{PropValue, Props, SceneError};
 use crate::spectrum::Spectrum;
 use crate::texture::Texture;
 use glam::{Vec2, Vec3};

@@ -16,8 +16,8 @@
 
 use super::fresnel::{fresnel_dielectric, fresnel_diffuse_reflectance, reflect_local};
 use super::{finish_sample, read_eta, sanitize, Bsdf, BsdfContext, BsdfLoader, BsdfLobe, BsdfSample};
+use crate::props::{Props, SceneError};
 use crate::sampling::square_to_cosine_hemisphere;
-use crate::scene::{Props, SceneError};
 use crate::spectrum::Spectrum;
 use crate::texture::Texture;
 use glam::{Vec2, Vec3};

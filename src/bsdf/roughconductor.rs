@@ -19,7 +19,7 @@ use super::{
     finish_sample, read_alpha, read_conductor_ior, read_distribution, sanitize, Bsdf, BsdfContext,
     BsdfLoader, BsdfLobe, BsdfSample,
 };
-use crate::scene::{Props, SceneError};
+use crate::props::{Props, SceneError};
 use crate::spectrum::Spectrum;
 use crate::texture::Texture;
 use glam::{Vec2, Vec3};

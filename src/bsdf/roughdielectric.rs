@@ -23,7 +23,7 @@ use super::{
     finish_sample, read_alpha, read_distribution, read_eta, sanitize, Bsdf, BsdfContext, BsdfLoader,
     BsdfLobe, BsdfSample, TransportMode,
 };
-use crate::scene::{Props, SceneError};
+use crate::props::{Props, SceneError};
 use crate::spectrum::Spectrum;
 use crate::texture::Texture;
 use glam::{Vec2, Vec3};

@@ -25,8 +25,8 @@ use super::{
     finish_sample, read_alpha, read_distribution, read_eta, sanitize, Bsdf, BsdfContext, BsdfLoader,
     BsdfLobe, BsdfSample,
 };
+use crate::props::{Props, SceneError};
 use crate::sampling::square_to_cosine_hemisphere;
-use crate::scene::{Props, SceneError};
 use crate::spectrum::Spectrum;
 use crate::texture::Texture;
 use glam::{Vec2, Vec3};

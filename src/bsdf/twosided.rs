@@ -10,7 +10,7 @@
 //! Mitsuba 3 does. Nested BSDFs must not transmit light.
 
 use super::{Bsdf, BsdfContext, BsdfLoader, BsdfLobe, BsdfSample};
-use crate::scene::{Props, SceneError};
+use crate::props::{Props, SceneError};
 use crate::spectrum::Spectrum;
 use glam::{Vec2, Vec3};
 use std::sync::Arc;

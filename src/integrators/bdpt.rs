@@ -7,13 +7,12 @@
 //! Parameters (`<integrator type="bdpt">`, or the CLI): `max_depth` (longest path in segments, −1 =
 //! unbounded), `rr_depth` (Russian roulette from this many segments), `hide_emitters`.
 
-use super::{DepthLimits, PixelIntegrator, SampleCounters, SampleOutput};
 use crate::bsdf::TransportMode;
 use crate::geometry::{Ray, Vec2, Vec3};
 use crate::lights::{EmissionSample, Light};
 use crate::path::walk::{self, WalkLimits};
 use crate::path::{geometry_term, mis_weight_limited, visible, MisHeuristic, PathPdfs, PathView, Vertex};
-use crate::render::Splat;
+use crate::render::{DepthLimits, PixelIntegrator, SampleCounters, SampleOutput, Splat};
 use crate::sampling::{SampleSource, Sampler};
 use crate::scene::Scene;
 use crate::spectrum::Spectrum;

@@ -2,9 +2,9 @@
 //! (power heuristic, Veach 1997 §9.2) between light sampling and BSDF sampling, and Russian roulette
 //! on throughput·η² as Mitsuba 3's `path` does, so the two renderers agree on every scene.
 
-use super::{DepthLimits, PixelIntegrator, SampleCounters, SampleOutput};
 use crate::bsdf::{BsdfContext, TransportMode};
 use crate::geometry::{Ray, Vec3};
+use crate::render::{DepthLimits, PixelIntegrator, SampleCounters, SampleOutput};
 use crate::sampling::{power_heuristic, Sampler};
 use crate::scene::Scene;
 use crate::spectrum::Spectrum;
@@ -116,7 +116,7 @@ impl PixelIntegrator for PathTracer {
             };
 
             if let Some((li, area)) = scene.area_light(si.shape).filter(|_| self.keeps(segments)) {
-                let sp = area.surface_point(&si);
+                let sp = si.light_point();
                 let le = area.emitted(&sp, si.wi);
                 if le != Spectrum::ZERO {
                     let weight = self.emission_weight(&prev, |pv| {

@@ -4,8 +4,8 @@
 
 use super::{check_emission, LightSample};
 use crate::geometry::TriangleMesh;
+use crate::props::{Props, SceneError};
 use crate::sampling::{square_to_uniform_triangle, Distribution1D};
-use crate::scene::{Props, SceneError};
 use crate::spectrum::{luminance, Spectrum};
 use crate::texture::Texture;
 use glam::{Vec2, Vec3};
@@ -117,11 +117,6 @@ impl AreaLight {
             return 0.0;
         }
         self.pdf_area() * dist2 / cos_light
-    }
-
-    /// The emitter-side description of a ray hit on this light's shape.
-    pub fn surface_point(&self, si: &crate::scene::SurfaceInteraction) -> SurfacePoint {
-        SurfacePoint { prim: si.prim, bary: si.bary, p: si.p, ng: si.ng, ns: si.frame.n, uv: si.uv }
     }
 
     /// Geometric normal turned to the emitting side (the side of the shading normal).

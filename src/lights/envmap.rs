@@ -5,8 +5,8 @@
 use super::{check_emission, LightSample};
 use crate::geometry::Transform;
 use crate::image::ImageBuf;
+use crate::props::{Props, SceneError};
 use crate::sampling::Distribution1D;
-use crate::scene::{Props, SceneError};
 use crate::spectrum::{luminance, Spectrum};
 use glam::{Vec2, Vec3};
 use std::f32::consts::PI;

@@ -12,8 +12,8 @@ pub use envmap::EnvMap;
 pub use point::PointLight;
 pub use spot::SpotLight;
 
+use crate::props::{Props, SceneError};
 use crate::sampling::Distribution1D;
-use crate::scene::{Props, SceneError};
 use crate::spectrum::{luminance, Spectrum};
 use glam::{Vec2, Vec3};
 use std::f32::consts::PI;

@@ -1,7 +1,7 @@
 //! Isotropic point light (Mitsuba's `point`): `intensity` in W/sr, placed by `position` or `to_world`.
 
 use super::{check_emission, LightSample};
-use crate::scene::{Props, SceneError};
+use crate::props::{Props, SceneError};
 use crate::spectrum::Spectrum;
 use glam::Vec3;
 

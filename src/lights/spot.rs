@@ -3,7 +3,7 @@
 
 use super::{check_emission, LightSample};
 use crate::geometry::Transform;
-use crate::scene::{Props, SceneError};
+use crate::props::{Props, SceneError};
 use crate::spectrum::{luminance, Spectrum};
 use glam::Vec3;
 use std::f32::consts::PI;

@@ -1,6 +1,8 @@
 //! The generalised half-vector constraint of an inner path vertex (HSLT, Kaplanyan et al. 2014, Sec. 4;
 //! Walter et al. 2007 for refraction) and its analytic derivative blocks A_i, B_i, C_i with respect to
 //! the tangent-plane offsets of x_{i-1}, x_i, x_{i+1} (appendix Eq. 11), assembled into J for a path.
+//! Over 600 lines because of its tests: half the file checks the analytic blocks against central
+//! differences and known mirror, Snell and degenerate configurations, next to the equations they test.
 
 use glam::{DMat2, DVec2, DVec3};
 

@@ -4,6 +4,7 @@
 
 pub mod blocktri;
 pub mod constraint;
+pub mod corrector;
 pub mod sampling;
 pub mod sweep;
 pub mod trace;
@@ -15,12 +16,13 @@ pub use constraint::{
     path_geometry, path_geometry_in_chart, path_half_vectors, ConstraintError, LocalGeometry,
     PathConstraints, VertexConstraint,
 };
+pub use corrector::{corrector_pass, corrector_pass_counting_rays, CorrectorFailure};
 pub use sampling::{
     bandwidth_shares, beckmann_to_phong, mobius, mobius_inverse, step_sizes, HalfVectorProposal,
     PhongDiskLobe, StepSizes,
 };
 pub use trace::{direction_per_half_vector, log_dirac_factor, scatter_with_half_vector};
 pub use walk::{
-    corrector_pass, corrector_pass_counting_rays, walk, walk_counting_rays, walk_in_chart_counting_rays,
-    walk_many, walk_many_through, CorrectorFailure, WalkError, WalkJob, WalkResult, WalkSettings,
+    walk, walk_counting_rays, walk_in_chart_counting_rays, walk_many, walk_many_through, WalkError, WalkJob,
+    WalkResult, WalkSettings,
 };

@@ -10,8 +10,8 @@ use super::constraint::{path_constraints, path_etas, path_geometry, ConstraintEr
 use super::walk::{walk, WalkSettings};
 use crate::geometry::Vec2;
 use crate::integrators::bdpt::{Bdpt, Subpaths};
-use crate::integrators::{DepthLimits, SampleCounters};
 use crate::path::{visible, PathView, Vertex, VertexKind};
+use crate::render::{DepthLimits, SampleCounters};
 use crate::sampling::Sampler;
 use crate::scene::Scene;
 use crate::spectrum::luminance;

@@ -4,8 +4,8 @@
 //! their mutations on indirect light. PSSMLT does so by default, and so do the path-space methods
 //! whose mixture has a large step (`DirectPass::for_path_space` says why).
 
-use crate::integrators::{Bdpt, DepthLimits, PathTracer};
-use crate::render::{self, Film, RenderOptions, RenderStats};
+use crate::integrators::{Bdpt, PathTracer};
+use crate::render::{self, DepthLimits, Film, RenderOptions, RenderStats};
 use crate::scene::Scene;
 use std::sync::atomic::AtomicBool;
 

@@ -5,9 +5,9 @@
 use super::driver::{CountsRays, FilmState};
 use super::ChainState;
 use crate::geometry::Vec2;
-use crate::integrators::{Bdpt, SampleCounters};
+use crate::integrators::Bdpt;
 use crate::path::{PathView, Vertex, VertexKind};
-use crate::render::Splat;
+use crate::render::{SampleCounters, Splat};
 use crate::scene::Scene;
 use crate::spectrum::Spectrum;
 

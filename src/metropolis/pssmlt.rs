@@ -9,9 +9,11 @@ use super::direct;
 use super::driver::{self, ChainRunner, CountsRays, FilmState, RunningChain};
 use super::pss::PssSampler;
 use crate::geometry::Vec2;
-use crate::integrators::bdpt::{Contribution, Subpaths};
-use crate::integrators::{Bdpt, Integrator, RenderOutput, SampleCounters};
-use crate::render::{Film, RenderOptions, RenderStats, Splat};
+use crate::integrators::{
+    bdpt::{Contribution, Subpaths},
+    Bdpt,
+};
+use crate::render::{Film, Integrator, RenderOptions, RenderOutput, RenderStats, SampleCounters, Splat};
 use crate::sampling::{SampleSource, Sampler};
 use crate::scene::Scene;
 use crate::spectrum::Spectrum;

@@ -7,7 +7,7 @@
 use super::{PathView, Vertex};
 use crate::bsdf::{BsdfContext, BsdfLobe, TransportMode};
 use crate::geometry::{Ray, Vec3};
-use crate::integrators::SampleCounters;
+use crate::render::SampleCounters;
 use crate::sampling::SampleSource;
 use crate::scene::Scene;
 use crate::spectrum::Spectrum;

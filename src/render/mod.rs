@@ -5,11 +5,14 @@
 //! snapshot hook that every integrator (pixel or Metropolis) calls to show its image at requested times.
 
 mod film;
+mod integrator;
 
 pub use film::{Film, Splat};
+pub use integrator::{
+    DepthLimits, Integrator, PixelIntegrator, RenderOutput, SampleCounters, SampleOutput, TiledRenderer,
+};
 
 use crate::image::ImageBuf;
-use crate::integrators::{PixelIntegrator, SampleCounters, SampleOutput};
 use crate::sampling::Sampler;
 use crate::scene::Scene;
 use crate::spectrum::Spectrum;

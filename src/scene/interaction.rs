@@ -4,6 +4,7 @@
 use super::Scene;
 use crate::accel::Hit;
 use crate::geometry::{Frame, Ray, Vec2, Vec3};
+use crate::lights::SurfacePoint;
 
 #[derive(Clone, Copy, Debug)]
 pub struct SurfaceInteraction {
@@ -99,6 +100,18 @@ impl SurfaceInteraction {
     /// The offset of shadow rays leaving `p` (`geometry::offset_origin`).
     pub fn offset(&self) -> Vec3 {
         self.ng * self.eps
+    }
+
+    /// The emitter-side description of this hit, for when its shape is an area light.
+    pub fn light_point(&self) -> SurfacePoint {
+        SurfacePoint {
+            prim: self.prim,
+            bary: self.bary,
+            p: self.p,
+            ng: self.ng,
+            ns: self.frame.n,
+            uv: self.uv,
+        }
     }
 }
 

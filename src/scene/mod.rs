@@ -2,15 +2,12 @@
 //! render-ready scene: world-space meshes, BSDFs, lights, sensor and film, built only as far as the
 //! scene needs them (no texture system without bitmaps, no light structures for absent light types).
 
-pub mod error;
 mod interaction;
-pub mod props;
 pub mod shapes;
 pub mod xml;
 
-pub use error::{SceneError, SrcLoc};
+pub use crate::props::{Prop, PropValue, Props, SceneError, SrcLoc};
 pub use interaction::{surface_derivatives, SurfaceDerivatives, SurfaceInteraction};
-pub use props::{Prop, PropValue, Props};
 
 use crate::accel::{AccelKind, RayQuery};
 use crate::bsdf::{self, Bsdf, BsdfLoader};

@@ -2,7 +2,7 @@
 //! and the image's left edge maps to camera +x (so `to_world` matrices from Mitsuba scenes work as is).
 
 use crate::geometry::{Ray, Transform, Vec2, Vec3};
-use crate::scene::{Props, SceneError};
+use crate::props::{Props, SceneError};
 
 #[derive(Clone, Debug)]
 pub struct PerspectiveCamera {

@@ -8,7 +8,7 @@ mod rfilter;
 pub use camera::PerspectiveCamera;
 pub use rfilter::ReconstructionFilter;
 
-use crate::scene::{Props, SceneError};
+use crate::props::{Props, SceneError};
 
 /// Film size and reconstruction filter (`hdrfilm`).
 #[derive(Clone, Debug)]

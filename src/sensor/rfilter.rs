@@ -3,8 +3,8 @@
 //! independent (deterministic under any thread count). For the positive filters Mitsuba offers this has
 //! the same expectation as its splatting, ∫ f L / ∫ f.
 
+use crate::props::{Props, SceneError};
 use crate::sampling::special::{erf64, erfinv64};
-use crate::scene::{Props, SceneError};
 use glam::Vec2;
 
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -14,8 +14,9 @@ mod stuck;
 use std::sync::atomic::AtomicBool;
 
 use super::Case;
-use crate::integrators::{Bdpt, DepthLimits};
+use crate::integrators::Bdpt;
 use crate::metropolis::{MutationStats, PathSeeds, PathState};
+use crate::render::DepthLimits;
 use crate::scene::Scene;
 
 pub fn cases() -> Vec<Case> {

@@ -15,7 +15,7 @@
 
 use super::apply_to_uv;
 use crate::image::ImageBuf;
-use crate::scene::{Props, SceneError};
+use crate::props::{Props, SceneError};
 use crate::spectrum::{luminance, Spectrum};
 use glam::{Mat4, Vec2, Vec3};
 use std::collections::HashMap;

@@ -10,7 +10,7 @@
 //! so the unit square holds a 2×2 board with `color0` at its lower-left and upper-right cells.
 
 use super::{apply_to_uv, Texture};
-use crate::scene::{Props, SceneError};
+use crate::props::{Props, SceneError};
 use crate::spectrum::Spectrum;
 use glam::{Mat4, Vec2, Vec3};
 use std::path::Path;

@@ -8,7 +8,7 @@ mod checkerboard;
 pub use bitmap::{BitmapData, BitmapTexture, FilterType, WrapMode};
 pub use checkerboard::Checkerboard;
 
-use crate::scene::{PropValue, Props, SceneError};
+use crate::props::{PropValue, Props, SceneError};
 use crate::spectrum::{luminance, Spectrum};
 use glam::{Mat4, Vec2, Vec3};
 use std::path::{Path, PathBuf};
@@ -162,7 +162,7 @@ pub fn apply_to_uv(m: &Mat4, uv: Vec2) -> Vec2 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::scene::SrcLoc;
+    use crate::props::SrcLoc;
 
     fn loc(line: u32) -> SrcLoc {
         SrcLoc::new(Path::new("/tmp/scene.xml"), line, 1)

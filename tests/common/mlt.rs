@@ -2,7 +2,8 @@
 //! statistics compare block means across independent runs (different seeds) rather than pixels.
 
 use hslt::image::ImageBuf;
-use hslt::integrators::{Bdpt, DepthLimits};
+use hslt::integrators::Bdpt;
+use hslt::render::DepthLimits;
 use hslt::scene::Scene;
 
 /// The BDPT a scene's integrator settings describe (what seeds and regrows the chains' paths).

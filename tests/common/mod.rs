@@ -113,7 +113,7 @@ pub fn compare(
 /// squared Student t with runs − 1 degrees of freedom: mean (runs − 1)/(runs − 3), not 1.
 pub fn render_runs(
     scene: &hslt::scene::Scene,
-    kind: hslt::integrators::IntegratorKind,
+    kind: hslt::registry::IntegratorKind,
     spp: u32,
     runs: u64,
     block: (usize, usize),

@@ -13,8 +13,7 @@
 
 use crate::bsdf::{BsdfContext, TransportMode};
 use crate::geometry::{Ray, Vec2};
-use crate::integrators::bdpt::sample_light_endpoint;
-use crate::integrators::Bdpt;
+use crate::integrators::{bdpt::sample_light_endpoint, Bdpt};
 use crate::metropolis::chain::{Failure, Mutation, MutationStats, Proposal};
 use crate::metropolis::path_state::{PathContext, PathState};
 use crate::path::walk::{self, WalkLimits};

@@ -179,7 +179,7 @@ impl<'a> Mutation<PathState, PathContext<'a>> for LargeStep {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::integrators::DepthLimits;
+    use crate::render::DepthLimits;
 
     fn bdpt(max_depth: i32, min_path_vertices: usize) -> Bdpt {
         let mut bdpt = Bdpt::new(DepthLimits { max_depth, rr_depth: 5 }, false);

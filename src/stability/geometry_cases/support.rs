@@ -7,7 +7,7 @@ use std::sync::atomic::AtomicBool;
 use glam::{DMat2, DVec2, Vec3};
 
 use crate::geometry::{offset_origin, Ray};
-use crate::integrators::{Bdpt, DepthLimits};
+use crate::integrators::Bdpt;
 use crate::manifold::{path_etas, walk, BlockTridiagonal, WalkResult, WalkSettings};
 pub use crate::metropolis::mutations::halfvector::relative_mismatch;
 use crate::metropolis::mutations::halfvector::{applicable, HalfVectorMutation, HalfVectorParams};
@@ -16,6 +16,7 @@ use crate::metropolis::{
     WeightedMutation,
 };
 use crate::path::Vertex;
+use crate::render::DepthLimits;
 use crate::sampling::Sampler;
 use crate::scene::Scene;
 use crate::spectrum::Spectrum;

@@ -8,10 +8,10 @@ use std::sync::atomic::AtomicBool;
 
 use super::{bdpt_for, mean_se, seeding, target};
 use crate::image::ImageBuf;
-use crate::integrators::{make_with, DepthLimits, Integrator, IntegratorKind, IntegratorSettings};
 use crate::metropolis::mutations::halfvector::{HalfVectorMutation, HalfVectorParams};
 use crate::metropolis::{Failure, MltSettings, Mutation, MutationKind, MutationStats, PathContext, PathMlt};
-use crate::render::RenderOptions;
+use crate::registry::{make_with, IntegratorKind, IntegratorSettings};
+use crate::render::{DepthLimits, Integrator, RenderOptions};
 use crate::sampling::Sampler;
 use crate::scene::Scene;
 use crate::stability::scenes::from_xml;

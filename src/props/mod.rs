@@ -1,8 +1,13 @@
-//! Plugin properties: the parsed parameters of one XML element, as Mitsuba's `Properties`.
-//! The XML parser fills them (names already normalised to Mitsuba 3's snake_case); each plugin's
-//! constructor reads what it understands and calls `expect_only` so misspelt parameters are errors.
+//! Plugin properties: the parsed parameters of one XML element, as Mitsuba's `Properties`, and the
+//! errors that point at the element at fault. They sit below both the plugins (BSDFs, lights, sensor,
+//! textures read them) and the scene loader (which fills them), as Mitsuba 3's `Properties` sits below
+//! its plugins. The XML parser fills them (names already normalised to Mitsuba 3's snake_case); each
+//! plugin's constructor reads what it understands and calls `expect_only` so misspelt parameters are errors.
 
-use super::error::{SceneError, SrcLoc};
+pub mod error;
+
+pub use error::{SceneError, SrcLoc};
+
 use glam::{Mat4, Vec3};
 use std::sync::Arc;
 
