@@ -20,6 +20,7 @@ pub mod props;
 pub mod registry;
 pub mod render;
 pub mod report;
+pub mod resources;
 pub mod sampling;
 pub mod scene;
 pub mod sensor;

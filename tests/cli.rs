@@ -210,3 +210,47 @@ fn hslt_direction_reaches_the_mutation_and_the_metadata() {
     );
     std::fs::remove_dir_all(&dir).ok();
 }
+
+#[test]
+fn a_scene_nested_200000_deep_is_one_error_not_an_abort() {
+    let dir = tmp_dir("deep");
+    let path = dir.join("deep.xml");
+    let n = 200_000;
+    let xml = format!(
+        "<scene version=\"3.0.0\">{}<bsdf type=\"diffuse\"/>{}</scene>",
+        "<bsdf type=\"twosided\">".repeat(n),
+        "</bsdf>".repeat(n)
+    );
+    std::fs::write(&path, xml).unwrap();
+    let out = hslt().args(["info", path.to_str().unwrap()]).output().unwrap();
+    assert_eq!(out.status.code(), Some(1), "stderr: {}", stderr(&out));
+    expect_error(&["info", path.to_str().unwrap()], &["deep.xml:1:", "nested more than"]);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Sizes that inputs declare are checked against the memory this process can still allocate (plus a
+/// limit set with `ulimit -v`), so they fail with one error naming the file instead of an abort.
+/// huge-header.png was written with Python: the PNG signature, an IHDR chunk of 1000000 x 1000000
+/// 8-bit RGB with its CRC, one tiny IDAT and IEND.
+#[test]
+fn declared_sizes_beyond_memory_are_errors_not_aborts() {
+    const FINE_TEXTURE: &str = "texture=../../../docs/cbox.png";
+    let scene = data("textured.xml");
+    let scene = scene.to_str().unwrap();
+    let out_dir = tmp_dir("sizes");
+    let out = out_dir.join("x.exr");
+    let out = out.to_str().unwrap();
+    expect_error(
+        &["render", scene, "-D", "resx=65536", "-D", FINE_TEXTURE, "--spp", "1", "-q", "-o", out],
+        &["textured.xml:", "<film", "65536x65536 film needs", "GiB"],
+    );
+    expect_error(
+        &["render", scene, "--spp", "1", "-q", "-o", out],
+        &["huge-header.png", "1000000x1000000 image", "GiB"],
+    );
+    // The same scene with a real texture renders.
+    let ok =
+        hslt().args(["render", scene, "-D", FINE_TEXTURE, "--spp", "1", "-q", "-o", out]).output().unwrap();
+    assert!(ok.status.success(), "{}", stderr(&ok));
+    let _ = std::fs::remove_dir_all(&out_dir);
+}

@@ -245,3 +245,43 @@ fn missing_file_is_a_clear_error() {
     assert!(e.to_string().contains("does_not_exist.xml"), "{e}");
     assert!(e.message.contains("cannot read scene file"), "{e}");
 }
+
+/// A scene whose plugins nest `levels` deep below `<scene>` (each level a `twosided` holding the next),
+/// with a comment holding a start tag and an attribute value holding "/>" at every level, which the
+/// nesting scan must not count.
+fn nested_scene(levels: usize) -> String {
+    let mut xml = String::from("<?xml version=\"1.0\"?>\n<!-- <bsdf> in a comment opens nothing -->\n");
+    xml.push_str("<scene version=\"3.0.0\">\n");
+    for _ in 1..levels {
+        xml.push_str("<bsdf type=\"twosided\" name=\"x/>y\"><!-- <bsdf type=\"a\"> -->\n");
+    }
+    xml.push_str("<bsdf type=\"diffuse\"/>\n");
+    for _ in 1..levels {
+        xml.push_str("</bsdf>\n");
+    }
+    xml.push_str("</scene>\n");
+    xml
+}
+
+#[test]
+fn nesting_beyond_the_limit_is_an_error_not_a_stack_overflow() {
+    use hslt::scene::xml::{parse_str, MAX_NESTING};
+    let path = Path::new("deep.xml");
+    // <scene> is level 1, so MAX_NESTING - 1 plugin levels below it is the deepest accepted document.
+    let at_limit = parse_str(&nested_scene(MAX_NESTING - 1), path, &[]).unwrap();
+    let mut levels = 1;
+    let mut props = at_limit.entries[0].value.clone();
+    while let PropValue::Object(inner) = props {
+        levels += 1;
+        props = inner.entries.first().map_or(PropValue::Bool(false), |e| e.value.clone());
+    }
+    assert_eq!(levels, MAX_NESTING, "every level of the accepted document was read");
+    let over = parse_str(&nested_scene(MAX_NESTING), path, &[]).unwrap_err();
+    assert!(over.message.contains(&format!("nested more than {MAX_NESTING} deep")), "{over}");
+    // Line 3 is <scene>, so the first element too deep (level MAX_NESTING + 1) is on line MAX_NESTING + 3.
+    assert_eq!(over.loc.line as usize, MAX_NESTING + 3, "{over}");
+    assert!(over.to_string().starts_with("deep.xml:"), "{over}");
+    // Far beyond it, where roxmltree's recursive tokenizer would overflow the stack.
+    let abyss = parse_str(&nested_scene(200_000), path, &[]).unwrap_err();
+    assert!(abyss.message.contains("nested more than"), "{abyss}");
+}

@@ -109,7 +109,10 @@ pub fn read(path: &Path) -> anyhow::Result<(ImageBuf, ColorEncoding)> {
         .checked_mul(height)
         .and_then(|n| n.checked_mul(channels))
         .ok_or_else(|| anyhow::anyhow!("{}: image is too large", path.display()))?;
-    let mut img = ImageBuf { width, height, channels, data: vec![0.0; len] };
+    // The header's size is the file's word: a lying one must be an error, not an aborted allocation.
+    let what = format!("{}: a {width}x{height} image with {channels} channels", path.display());
+    let data = crate::resources::try_filled_vec(len, 0.0, &what).map_err(anyhow::Error::msg)?;
+    let mut img = ImageBuf { width, height, channels, data };
     // SAFETY: the handle is open; img.data has exactly `len` floats, which the shim checks against
     // the image size before writing; err is a valid out-pointer.
     let status = unsafe { hslt_oiio_read(handle.0, img.data.as_mut_ptr(), len, &mut err) };

@@ -291,6 +291,26 @@ mod tests {
     use super::*;
     use crate::sampling::Sampler;
 
+    #[test]
+    fn the_film_fits_in_what_the_loader_budgets_per_pixel() {
+        let film = Film::new(64, 32);
+        let pixels = (film.width * film.height) as u64;
+        let buffers = [
+            std::mem::size_of_val(film.sums.as_slice()),
+            std::mem::size_of_val(film.squares.as_slice()),
+            std::mem::size_of_val(film.counts.as_slice()),
+            std::mem::size_of_val(film.splats.as_slice()),
+        ];
+        let film_bytes = buffers.iter().sum::<usize>() as u64;
+        let image_bytes = std::mem::size_of_val(film.to_image().data.as_slice()) as u64;
+        // The film, the resolved image and one output copy of it.
+        let per_pixel = (film_bytes + 2 * image_bytes) / pixels;
+        assert!(
+            per_pixel <= crate::sensor::FILM_BYTES_PER_PIXEL,
+            "a render keeps {per_pixel} bytes per pixel, more than sensor::FILM_BYTES_PER_PIXEL"
+        );
+    }
+
     /// Splatting a camera sample's value at positions drawn from each pixel's own truncated filter must
     /// reproduce, on average, what the pixel mean gives: the filter weights are a partition of each
     /// pixel's sampling density. Checked by splatting a constant: every pixel must come out at 1.

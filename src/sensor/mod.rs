@@ -10,6 +10,11 @@ pub use rfilter::ReconstructionFilter;
 
 use crate::props::{Props, SceneError};
 
+/// Memory a render keeps per film pixel, for refusing films that cannot fit: the film's sums, squared
+/// sums, counts and splats (80 bytes, `render::Film`), the resolved image and one output copy (12
+/// bytes each), with headroom for layers and per-thread tiles. A test in `render` keeps it honest.
+pub const FILM_BYTES_PER_PIXEL: u64 = 128;
+
 /// Film size and reconstruction filter (`hdrfilm`).
 #[derive(Clone, Debug)]
 pub struct FilmSpec {
@@ -43,6 +48,9 @@ impl FilmSpec {
         if !(1..=65536).contains(&width) || !(1..=65536).contains(&height) {
             return Err(props.error(format!("film size {width}x{height} is outside 1..65536")));
         }
+        let film_bytes = (width * height) as u64 * FILM_BYTES_PER_PIXEL;
+        crate::resources::check_fits(film_bytes, &format!("a {width}x{height} film"))
+            .map_err(|e| props.error(e))?;
         let rfilter = match props.objects_with_tag("rfilter").next() {
             Some(f) => ReconstructionFilter::from_props(f)?,
             None => ReconstructionFilter::Gaussian { stddev: 0.5 },

@@ -25,6 +25,14 @@ pub fn parse_file(path: &Path, defines: &[(String, String)]) -> Result<Props, Sc
 /// Parses scene XML held in memory; `path` is only used for messages (and is what `loc.file` holds).
 pub fn parse_str(text: &str, path: &Path, defines: &[(String, String)]) -> Result<Props, SceneError> {
     let base_loc = SrcLoc::new(path, 0, 0);
+    if let Some(offset) = first_element_too_deep(text) {
+        let (line, col) = line_and_column(text, offset);
+        return Err(SceneError::new(
+            at(&base_loc, line, col),
+            None,
+            format!("elements nested more than {MAX_NESTING} deep (a scene needs a handful of levels)"),
+        ));
+    }
     // roxmltree refuses DTDs (and therefore entity expansion) by default, which is what we want.
     let doc = Document::parse(text).map_err(|e| {
         let pos = e.pos();
@@ -36,6 +44,72 @@ pub fn parse_str(text: &str, path: &Path, defines: &[(String, String)]) -> Resul
 
 fn at(base: &SrcLoc, line: u32, col: u32) -> SrcLoc {
     SrcLoc { file: base.file.clone(), line, col }
+}
+
+/// Deepest element nesting a scene may have. Real scenes need a handful of levels (scene, shape, bsdf,
+/// twosided's inner bsdf, texture); the limit turns a runaway or hostile file into an error instead of
+/// a stack overflow: roxmltree's tokenizer recurses once per level (its issue #154), and so do the
+/// descent below and the drop of the nested `Props`.
+pub const MAX_NESTING: usize = 100;
+
+/// Byte offset of the first start tag nested deeper than `MAX_NESTING`, by a scan of the tags alone, so
+/// that roxmltree never sees such a document. Comments, CDATA, processing instructions and
+/// declarations are skipped and quoted attribute values may hold `>`; malformed input is left to
+/// roxmltree, which reports it properly (this scan only has to count right on well-formed nesting).
+fn first_element_too_deep(text: &str) -> Option<usize> {
+    let b = text.as_bytes();
+    let skip_past = |from: usize, end: &[u8]| {
+        b[from..].windows(end.len()).position(|w| w == end).map_or(b.len(), |k| from + k + end.len())
+    };
+    let mut depth = 0usize;
+    let mut i = 0;
+    while let Some(k) = b[i..].iter().position(|&c| c == b'<').map(|k| i + k) {
+        let rest = &b[k..];
+        i = if rest.starts_with(b"<!--") {
+            skip_past(k + 4, b"-->")
+        } else if rest.starts_with(b"<![CDATA[") {
+            skip_past(k + 9, b"]]>")
+        } else if rest.starts_with(b"<?") {
+            skip_past(k + 2, b"?>")
+        } else if rest.starts_with(b"<!") {
+            skip_past(k + 2, b">")
+        } else if rest.starts_with(b"</") {
+            depth = depth.saturating_sub(1);
+            skip_past(k + 2, b">")
+        } else {
+            let mut j = k + 1;
+            let mut quote = None;
+            while j < b.len() {
+                match (quote, b[j]) {
+                    (Some(q), c) if c == q => quote = None,
+                    (None, c @ (b'"' | b'\'')) => quote = Some(c),
+                    (None, b'>') => break,
+                    _ => {}
+                }
+                j += 1;
+            }
+            // An empty-element tag sits one level down too, it just opens nothing below it.
+            if depth + 1 > MAX_NESTING {
+                return Some(k);
+            }
+            if b[j - 1] != b'/' {
+                depth += 1;
+            }
+            j + 1
+        };
+        if i >= b.len() {
+            break;
+        }
+    }
+    None
+}
+
+/// 1-based line and column (in characters) of a byte offset.
+fn line_and_column(text: &str, offset: usize) -> (u32, u32) {
+    let before = &text[..offset];
+    let line = before.matches('\n').count() + 1;
+    let col = before.rsplit('\n').next().unwrap_or("").chars().count() + 1;
+    (line as u32, col as u32)
 }
 
 /// Plugin element tags we understand (each becomes a nested `Props`).
