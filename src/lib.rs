@@ -9,6 +9,7 @@ pub mod accel;
 pub mod bench;
 pub mod bsdf;
 pub mod cli;
+pub mod fuzzing;
 pub mod geometry;
 pub mod image;
 pub mod integrators;
