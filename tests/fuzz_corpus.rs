@@ -1,6 +1,6 @@
-//! The fuzzing corpus as regression tests, on the stable toolchain and without AFL++: every committed
-//! input of fuzz/corpus/<target>/ (seeds, and any crash a fuzzing run found, once fixed) goes through
-//! the same entry point the fuzzer drives, and so do random mutations of the seeds (byte flips,
+//! The fuzzing corpus as regression tests, on the stable toolchain and without AFL++: every seed of
+//! fuzz/corpus/<target>/ and every crash a fuzzing run found (fuzz/regressions/<target>/, once fixed)
+//! goes through the same entry point the fuzzer drives, and so do random mutations of the seeds (byte flips,
 //! insertions, deletions, truncation, splices) — a quick mutation fuzzer that runs in every CI build.
 //! None may panic; the loaders answer bad input with an error.
 
@@ -41,6 +41,24 @@ fn every_seed_of_every_target_loads() {
             }
         }
     }
+}
+
+/// Inputs on which a fuzzing run crashed the renderer: each must now give an error or load, never
+/// panic. (This test runs with overflow checks, as the fuzzer's builds do.)
+#[test]
+fn crashes_found_by_fuzzing_stay_fixed() {
+    let mut replayed = 0;
+    for input in Input::ALL {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("fuzz/regressions").join(input.name());
+        let Ok(entries) = std::fs::read_dir(&dir) else { continue };
+        for entry in entries {
+            let path = entry.unwrap().path();
+            let name = path.file_name().unwrap().to_string_lossy().to_string();
+            let _ = feed_without_panic(input, &name, &std::fs::read(&path).unwrap());
+            replayed += 1;
+        }
+    }
+    assert!(replayed > 0, "no regression inputs found under fuzz/regressions");
 }
 
 #[derive(Clone, Debug)]

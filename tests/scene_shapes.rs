@@ -347,6 +347,11 @@ fn degenerate_triangles_are_skipped_with_a_warning() {
 fn bad_obj_indices_error() {
     let e = mesh_file("obj", "bad_index.obj", "").unwrap_err();
     assert!(e.to_string().contains("bad_index.obj"), "{e}");
+    assert!(e.message.contains("line 4 refers to vertex 7, but 3 are defined"), "{e}");
+    // A relative index reaching above the first texture coordinate: tobj's index arithmetic would
+    // overflow on it (a fuzzing find), so the loader refuses it first, naming the line.
+    let e = mesh_file("obj", "bad_relative_index.obj", "").unwrap_err();
+    assert!(e.message.contains("line 5 refers to texture coordinate -3, but 1 is defined above it"), "{e}");
 }
 
 #[test]

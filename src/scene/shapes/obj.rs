@@ -86,27 +86,58 @@ pub(super) fn load(path: &Path, props: &Props) -> Result<RawMesh, SceneError> {
     Ok(out)
 }
 
-/// `tobj` happily parses "nan" and "inf"; catch those with the file's own vertex numbering and
-/// line, which is what a user needs to find the bad vertex.
+/// Checks what `tobj` takes on trust: vertex coordinates must be finite, and every index of a face
+/// must name an element of its kind (position, texture coordinate, normal) that exists — a relative
+/// (negative) index one defined above it. tobj turns such indices into `usize` arithmetic that
+/// overflows (a panic in debug builds, found by fuzzing) or wraps to a valid-looking index.
 fn check_vertex_lines(text: &str, path: &Path, props: &Props) -> Result<(), SceneError> {
-    let mut vertex = 0usize;
+    const KINDS: [(&str, &str); 3] = [("v", "vertex"), ("vt", "texture coordinate"), ("vn", "normal")];
+    let keyword = |line: &str| line.trim_start().split_whitespace().next().map(str::to_string);
+    let mut totals = [0i64; 3];
+    for line in text.lines() {
+        if let Some(k) = keyword(line).and_then(|w| KINDS.iter().position(|(tag, _)| *tag == w)) {
+            totals[k] += 1;
+        }
+    }
+    let mut seen = [0i64; 3];
     for (line_no, line) in text.lines().enumerate() {
-        let t = line.trim_start();
-        let Some(rest) = t.strip_prefix("v ").or_else(|| t.strip_prefix("v\t")) else {
-            continue;
-        };
-        for tok in rest.split_whitespace().take(3) {
-            if let Ok(x) = tok.parse::<f64>() {
-                if !x.is_finite() {
-                    return Err(props.error(format!(
-                        "OBJ file '{}': vertex {vertex} (line {}) has a non-finite coordinate '{tok}'",
-                        path.display(),
-                        line_no + 1
-                    )));
+        let mut words = line.split_whitespace();
+        let Some(word) = words.next() else { continue };
+        if let Some(k) = KINDS.iter().position(|(tag, _)| *tag == word) {
+            if k == 0 {
+                for tok in words.clone().take(3) {
+                    if let Ok(x) = tok.parse::<f64>() {
+                        if !x.is_finite() {
+                            return Err(props.error(format!(
+                                "OBJ file '{}': vertex {} (line {}) has a non-finite coordinate '{tok}'",
+                                path.display(),
+                                seen[0],
+                                line_no + 1
+                            )));
+                        }
+                    }
+                }
+            }
+            seen[k] += 1;
+        } else if word == "f" {
+            for corner in words {
+                for (k, part) in corner.split('/').enumerate().take(3) {
+                    let Ok(index) = part.parse::<i64>() else { continue };
+                    let known = if index < 0 { seen[k] } else { totals[k] };
+                    if index == 0 || index.unsigned_abs() > known as u64 {
+                        return Err(props.error(format!(
+                            "OBJ file '{}': the face on line {} refers to {} {index}, but {} {} defined{}",
+                            path.display(),
+                            line_no + 1,
+                            KINDS[k].1,
+                            known,
+                            if known == 1 { "is" } else { "are" },
+                            if index < 0 { " above it" } else { "" }
+                        )));
+                    }
                 }
             }
         }
-        vertex += 1;
     }
     Ok(())
 }
