@@ -92,7 +92,7 @@ pub(super) fn load(path: &Path, props: &Props) -> Result<RawMesh, SceneError> {
 /// overflows (a panic in debug builds, found by fuzzing) or wraps to a valid-looking index.
 fn check_vertex_lines(text: &str, path: &Path, props: &Props) -> Result<(), SceneError> {
     const KINDS: [(&str, &str); 3] = [("v", "vertex"), ("vt", "texture coordinate"), ("vn", "normal")];
-    let keyword = |line: &str| line.trim_start().split_whitespace().next().map(str::to_string);
+    let keyword = |line: &str| line.split_whitespace().next().map(str::to_string);
     let mut totals = [0i64; 3];
     for line in text.lines() {
         if let Some(k) = keyword(line).and_then(|w| KINDS.iter().position(|(tag, _)| *tag == w)) {
