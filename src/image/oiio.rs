@@ -82,6 +82,9 @@ impl Drop for InputHandle {
     }
 }
 
+/// The most decoded samples a byte of an image file can plausibly stand for (see `read`).
+const MAX_SAMPLES_PER_FILE_BYTE: u64 = 65_536;
+
 /// Reads subimage 0 of `path`: float pixels with all of the file's channels, and how they are encoded.
 pub fn read(path: &Path) -> anyhow::Result<(ImageBuf, ColorEncoding)> {
     let c_path = path_to_cstring(path)?;
@@ -109,7 +112,18 @@ pub fn read(path: &Path) -> anyhow::Result<(ImageBuf, ColorEncoding)> {
         .checked_mul(height)
         .and_then(|n| n.checked_mul(channels))
         .ok_or_else(|| anyhow::anyhow!("{}: image is too large", path.display()))?;
-    // The header's size is the file's word: a lying one must be an error, not an aborted allocation.
+    // The header's size is the file's word: a lying one must be an error, not an aborted allocation
+    // or gigabytes zeroed for a file of a few hundred bytes (a fuzzing find). No image codec packs
+    // more than ~8 000 samples into a byte (deflate's 1032:1 on a 1-bit PNG), so a header claiming
+    // over 65 536 per byte of the file (plus room for tiny files) is lying.
+    let file_len = std::fs::metadata(path).map(|m| m.len()).unwrap_or(u64::MAX);
+    if len as u64 > file_len.saturating_mul(MAX_SAMPLES_PER_FILE_BYTE).saturating_add(1 << 24) {
+        anyhow::bail!(
+            "{}: the header declares a {width}x{height} image with {channels} channels, more than a file \
+             of {file_len} bytes can hold",
+            path.display()
+        );
+    }
     let what = format!("{}: a {width}x{height} image with {channels} channels", path.display());
     let data = crate::resources::try_filled_vec(len, 0.0, &what).map_err(anyhow::Error::msg)?;
     let mut img = ImageBuf { width, height, channels, data };
