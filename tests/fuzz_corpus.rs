@@ -4,7 +4,8 @@
 //! insertions, deletions, truncation, splices) — a quick mutation fuzzer that runs in every CI build.
 //! None may panic; the loaders answer bad input with an error.
 
-use hslt::fuzzing::{corpus_dir, feed, Input};
+use hslt::accel::AccelKind;
+use hslt::fuzzing::{corpus_dir, feed, feed_with, Input};
 use proptest::prelude::*;
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::path::Path;
@@ -54,7 +55,13 @@ fn crashes_found_by_fuzzing_stay_fixed() {
         for entry in entries {
             let path = entry.unwrap().path();
             let name = path.file_name().unwrap().to_string_lossy().to_string();
-            let _ = feed_without_panic(input, &name, &std::fs::read(&path).unwrap());
+            let data = std::fs::read(&path).unwrap();
+            let _ = feed_without_panic(input, &name, &data);
+            // Meshes also on the pure-Rust BVH, in this build with debug assertions.
+            if matches!(input, Input::Obj | Input::Ply) {
+                let bvh = catch_unwind(AssertUnwindSafe(|| feed_with(input, &data, AccelKind::Bvh)));
+                assert!(bvh.is_ok(), "{}: {name} panicked on the BVH backend", input.name());
+            }
             replayed += 1;
         }
     }

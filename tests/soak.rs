@@ -4,7 +4,7 @@
 //! each loaded and, when the loader accepts it, rendered by all seven integrators for a few samples.
 //! No panic, no non-finite or negative pixel, no render that overruns its time budget. Each scene
 //! comes from its own seed; a failure prints it, and `HSLT_SOAK_SEED=<seed>` replays that one scene.
-//! `HSLT_SOAK_SCENES=N` runs N scenes instead of the suite's 200 (docs/robustness.md reports longer runs).
+//! `HSLT_SOAK_SCENES=N` runs N scenes instead of the suite's 100 (docs/robustness.md reports longer runs).
 
 use hslt::accel::AccelKind;
 use hslt::registry::{make_with, IntegratorKind, IntegratorSettings};
@@ -17,7 +17,7 @@ use std::path::Path;
 use std::sync::atomic::AtomicBool;
 use std::time::{Duration, Instant};
 
-const SCENES_IN_SUITE: u64 = 200;
+const SCENES_IN_SUITE: u64 = 100;
 /// A render of 6×6 pixels at 2 spp that takes longer than this counts as a hang (they take
 /// milliseconds; the test cannot interrupt a render that never returns, but CI's timeout would).
 const HANG: Duration = Duration::from_secs(20);

@@ -41,10 +41,17 @@ impl Input {
 }
 
 /// Feeds `data` to the loader of `input`; `Ok` if it was accepted, the loader's error otherwise.
-/// Files go to a private temporary folder, since the loaders read paths.
+/// Files go to a private temporary folder, since the loaders read paths. Scenes are built on Embree,
+/// the default backend (the fuzzer's builds turn on obvhs's debug-only BVH validation, whose
+/// absolute tolerance large meshes exceed; see Cargo.toml).
 pub fn feed(input: Input, data: &[u8]) -> anyhow::Result<()> {
+    feed_with(input, data, AccelKind::Embree)
+}
+
+/// As `feed`, with scenes built on the given ray-query backend.
+pub fn feed_with(input: Input, data: &[u8], accel: AccelKind) -> anyhow::Result<()> {
     let dir = TempDir::new()?;
-    let options = LoadOptions { defines: Vec::new(), accel: AccelKind::Bvh };
+    let options = LoadOptions { defines: Vec::new(), accel };
     match input {
         Input::SceneXml => {
             let text = String::from_utf8_lossy(data);
