@@ -83,7 +83,7 @@ fn converges_to_bdpt_with(
     let mut all: Vec<(&str, &str)> = vec![("resx", "32"), ("resy", "32")];
     all.extend_from_slice(defines);
     let scene = load_scene(&path, &all).unwrap_or_else(|e| panic!("{rel}: {e:#}"));
-    let limits = DepthLimits { max_depth: scene.integrator.max_depth, rr_depth: scene.integrator.rr_depth };
+    let limits = DepthLimits::of_scene(&scene);
     let mut settings = IntegratorSettings::new(limits, scene.integrator.hide_emitters);
     settings.pssmlt.seed_paths = Some(SEED_PATHS);
     settings.pssmlt.direct = direct;

@@ -34,7 +34,7 @@ fn render_from_depth(
     direct: DirectPass,
     min_depth: i32,
 ) -> RenderOutput {
-    let limits = DepthLimits { max_depth: scene.integrator.max_depth, rr_depth: scene.integrator.rr_depth };
+    let limits = DepthLimits::of_scene(scene);
     let mut settings = IntegratorSettings::new(limits, scene.integrator.hide_emitters);
     settings.pssmlt.seed_paths = Some(16_384);
     settings.pssmlt.direct = direct;

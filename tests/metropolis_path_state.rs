@@ -21,7 +21,7 @@ fn scene(rel: &str) -> Scene {
 }
 
 fn bdpt(scene: &Scene) -> Bdpt {
-    let limits = DepthLimits { max_depth: scene.integrator.max_depth, rr_depth: scene.integrator.rr_depth };
+    let limits = DepthLimits::of_scene(scene);
     Bdpt::new(limits, scene.integrator.hide_emitters)
 }
 

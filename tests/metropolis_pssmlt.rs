@@ -30,7 +30,7 @@ fn scene(rel: &str, defines: &[(&str, &str)]) -> Scene {
 }
 
 fn render(scene: &Scene, kind: IntegratorKind, spp: u32, seed: u64, pssmlt: PssmltSettings) -> RenderOutput {
-    let limits = DepthLimits { max_depth: scene.integrator.max_depth, rr_depth: scene.integrator.rr_depth };
+    let limits = DepthLimits::of_scene(scene);
     let mut settings = IntegratorSettings::new(limits, scene.integrator.hide_emitters);
     settings.pssmlt = pssmlt;
     let options = RenderOptions { spp: Some(spp), seed, ..Default::default() };

@@ -21,7 +21,7 @@ fn scene() -> hslt::scene::Scene {
 fn snapshots_arrive_after_their_times_and_match_a_render_of_that_many_samples() {
     let _turn = TIMED.lock().unwrap_or_else(|e| e.into_inner());
     let scene = scene();
-    let limits = DepthLimits { max_depth: scene.integrator.max_depth, rr_depth: scene.integrator.rr_depth };
+    let limits = DepthLimits::of_scene(&scene);
     let integrator = registry::make(IntegratorKind::Path, limits, false);
     let taken: Arc<Mutex<Vec<Snapshot>>> = Arc::default();
     let sink = {
@@ -68,7 +68,7 @@ fn snapshots_arrive_after_their_times_and_match_a_render_of_that_many_samples() 
 #[test]
 fn first_sample_continues_the_streams() {
     let scene = scene();
-    let limits = DepthLimits { max_depth: scene.integrator.max_depth, rr_depth: scene.integrator.rr_depth };
+    let limits = DepthLimits::of_scene(&scene);
     let integrator = registry::make(IntegratorKind::Path, limits, false);
     let never = AtomicBool::new(false);
     let render = |spp, first_sample| {
@@ -90,7 +90,7 @@ fn first_sample_continues_the_streams() {
 fn metropolis_chains_take_snapshots_between_rounds() {
     let _turn = TIMED.lock().unwrap_or_else(|e| e.into_inner());
     let scene = scene();
-    let limits = DepthLimits { max_depth: scene.integrator.max_depth, rr_depth: scene.integrator.rr_depth };
+    let limits = DepthLimits::of_scene(&scene);
     let mut settings = registry::IntegratorSettings::new(limits, false);
     settings.pssmlt.seed_paths = Some(4096);
     settings.pssmlt.chains = 8;

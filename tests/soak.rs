@@ -170,7 +170,7 @@ fn soak_one(seed: u64) -> Result<&'static str, String> {
         }
         Ok(Ok(scene)) => scene,
     };
-    let limits = DepthLimits { max_depth: scene.integrator.max_depth, rr_depth: scene.integrator.rr_depth };
+    let limits = DepthLimits::of_scene(&scene);
     let mut settings = IntegratorSettings::new(limits, false);
     settings.pssmlt.seed_paths = Some(512);
     settings.pssmlt.chains = 4;

@@ -277,7 +277,7 @@ pub fn bench_hslt(
     repeats: usize,
     direction: TraceDirection,
 ) -> anyhow::Result<String> {
-    let limits = DepthLimits { max_depth: scene.integrator.max_depth, rr_depth: scene.integrator.rr_depth };
+    let limits = DepthLimits::of_scene(scene);
     let bdpt = Bdpt::new(limits, scene.integrator.hide_emitters);
     let starts = stationary_starts(scene, &bdpt, proposals)?;
     let repeats = repeats.max(1);

@@ -88,11 +88,8 @@ pub(super) fn run_bench(args: BenchArgs) -> anyhow::Result<i32> {
     let mut scene = load(&args.scene, parse_accel(&args.accel)?)?;
     let pool = thread_pool(args.threads)?;
     let threads = pool.current_num_threads();
-    let integrator = registry::make(
-        IntegratorKind::Path,
-        DepthLimits { max_depth: scene.integrator.max_depth, rr_depth: scene.integrator.rr_depth },
-        scene.integrator.hide_emitters,
-    );
+    let integrator =
+        registry::make(IntegratorKind::Path, DepthLimits::of_scene(&scene), scene.integrator.hide_emitters);
     let options = RenderOptions { spp: Some(args.spp), seed: 1, ..Default::default() };
     let never = AtomicBool::new(false);
     // Warm-up pass so page faults and lazy initialisation are not measured.
@@ -122,7 +119,7 @@ pub(super) fn run_bench(args: BenchArgs) -> anyhow::Result<i32> {
 pub(super) fn run_bench_integrators(args: BenchIntegratorsArgs) -> anyhow::Result<i32> {
     let scene = load(&args.scene, AccelKind::Embree)?;
     let pool = thread_pool(args.threads)?;
-    let limits = DepthLimits { max_depth: scene.integrator.max_depth, rr_depth: scene.integrator.rr_depth };
+    let limits = DepthLimits::of_scene(&scene);
     let kinds = args
         .integrators
         .split(',')

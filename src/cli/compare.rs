@@ -4,12 +4,12 @@
 
 use super::render::metadata;
 use super::{
-    check_seconds, depth_limits, install_ctrlc_handler, load, load_reference, lookup, parse_accel,
-    parse_hslt_direction, thread_pool, SceneArgs, CANCEL,
+    check_seconds, install_ctrlc_handler, load, load_reference, lookup, parse_accel, parse_hslt_direction,
+    thread_pool, SceneArgs, CANCEL,
 };
 use crate::image::{read_exr_metadata, write_image, ImageBuf, Metadata};
 use crate::registry::{self, IntegratorKind};
-use crate::render::{RenderOptions, Snapshot, SnapshotHook};
+use crate::render::{DepthLimits, RenderOptions, Snapshot, SnapshotHook};
 use crate::report::html::{self, IntegratorEntry, Page};
 use crate::report::{self, metrics, plot, ErrorRow, Metric};
 use anyhow::{bail, Context};
@@ -114,7 +114,7 @@ pub fn run_compare(args: CompareArgs) -> anyhow::Result<i32> {
     let threads = pool.current_num_threads();
     let total = Duration::from_secs_f64(args.time);
     let times = report::log_spaced_times(total, args.snapshots);
-    let limits = depth_limits(&scene);
+    let limits = DepthLimits::of_scene(&scene);
     if limits.max_depth > 0 && args.min_depth > limits.max_depth {
         bail!("--min-depth {} is above the scene's max_depth ({})", args.min_depth, limits.max_depth);
     }

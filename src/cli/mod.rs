@@ -146,10 +146,6 @@ fn check_seconds(flag: &str, v: f64) -> anyhow::Result<()> {
     Ok(())
 }
 
-fn depth_limits(scene: &Scene) -> DepthLimits {
-    DepthLimits { max_depth: scene.integrator.max_depth, rr_depth: scene.integrator.rr_depth }
-}
-
 /// Reads an image to compare against and checks it matches the scene's film.
 fn load_reference(path: &Path, scene: &Scene) -> anyhow::Result<ImageBuf> {
     let img =
@@ -226,11 +222,7 @@ pub fn render_scene_film(
     spp: u32,
     seed: u64,
 ) -> (crate::render::Film, RenderStats) {
-    let integrator = registry::make(
-        kind,
-        DepthLimits { max_depth: scene.integrator.max_depth, rr_depth: scene.integrator.rr_depth },
-        scene.integrator.hide_emitters,
-    );
+    let integrator = registry::make(kind, DepthLimits::of_scene(scene), scene.integrator.hide_emitters);
     let options = RenderOptions { spp: Some(spp), seed, ..Default::default() };
     let never = AtomicBool::new(false);
     let output = integrator.render(scene, &options, &never);

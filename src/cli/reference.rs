@@ -3,8 +3,8 @@
 
 use super::render::metadata;
 use super::{
-    check_seconds, depth_limits, install_ctrlc_handler, load, load_reference, lookup, parse_accel,
-    thread_pool, SceneArgs, CANCEL,
+    check_seconds, install_ctrlc_handler, load, load_reference, lookup, parse_accel, thread_pool, SceneArgs,
+    CANCEL,
 };
 use crate::image::{read_exr_metadata, write_image, ImageBuf};
 use crate::registry::{self, IntegratorKind};
@@ -200,7 +200,7 @@ pub fn run_reference(args: ReferenceArgs) -> anyhow::Result<i32> {
     // Pixel integrators continue their per-pixel streams after the samples already taken; integrators
     // without spp get the segment count, which they mix into their seeds (RenderOptions::first_sample).
     let first_sample = earlier.as_ref().map(|e| if e.spp > 0 { e.spp } else { e.segments }).unwrap_or(0);
-    let limits = depth_limits(&scene);
+    let limits = DepthLimits::of_scene(&scene);
     let integrator = registry::make(kind, limits, scene.integrator.hide_emitters);
     install_ctrlc_handler("finishing the current work and writing the outputs so far");
     let pool = thread_pool(args.threads)?;

@@ -92,3 +92,10 @@ pub struct DepthLimits {
     /// Russian roulette starts once a path has this many segments.
     pub rr_depth: i32,
 }
+
+impl DepthLimits {
+    /// The limits the scene's `<integrator>` element asks for.
+    pub fn of_scene(scene: &Scene) -> DepthLimits {
+        DepthLimits { max_depth: scene.integrator.max_depth, rr_depth: scene.integrator.rr_depth }
+    }
+}

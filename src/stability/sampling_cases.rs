@@ -78,7 +78,7 @@ pub fn cases() -> Vec<Case> {
 
 /// The BDPT a scene's integrator settings describe: it seeds the chains and regrows paths.
 fn bdpt_for(scene: &Scene) -> Bdpt {
-    let limits = DepthLimits { max_depth: scene.integrator.max_depth, rr_depth: scene.integrator.rr_depth };
+    let limits = DepthLimits::of_scene(scene);
     Bdpt::new(limits, scene.integrator.hide_emitters)
 }
 

@@ -8,7 +8,7 @@ use hslt::scene::Scene;
 
 /// The BDPT a scene's integrator settings describe (what seeds and regrows the chains' paths).
 pub fn bdpt(scene: &Scene) -> Bdpt {
-    let limits = DepthLimits { max_depth: scene.integrator.max_depth, rr_depth: scene.integrator.rr_depth };
+    let limits = DepthLimits::of_scene(scene);
     Bdpt::new(limits, scene.integrator.hide_emitters)
 }
 

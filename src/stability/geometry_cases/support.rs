@@ -23,7 +23,7 @@ use crate::spectrum::Spectrum;
 
 /// The BDPT the scene's integrator settings describe: it seeds the chains and bounds their depth.
 pub fn bdpt(scene: &Scene) -> Bdpt {
-    let limits = DepthLimits { max_depth: scene.integrator.max_depth, rr_depth: scene.integrator.rr_depth };
+    let limits = DepthLimits::of_scene(scene);
     Bdpt::new(limits, scene.integrator.hide_emitters)
 }
 
