@@ -40,7 +40,7 @@ pub fn parse_str(text: &str, path: &Path, defines: &[(String, String)]) -> Resul
         let pos = e.pos();
         SceneError::new(at(&base_loc, pos.row, pos.col), None, format!("malformed XML: {e}"))
     })?;
-    let mut parser = XmlParser { doc: &doc, lines, base_loc, params: defines.to_vec(), ids: HashMap::new() };
+    let mut parser = XmlParser { lines, base_loc, params: defines.to_vec(), ids: HashMap::new() };
     parser.parse_root(doc.root_element())
 }
 
@@ -153,8 +153,7 @@ const UNSUPPORTED_PLUGIN_TAGS: &[(&str, &str)] = &[
     ("subsurface", "subsurface scattering is not supported"),
 ];
 
-struct XmlParser<'d, 'i> {
-    doc: &'d Document<'i>,
+struct XmlParser<'i> {
     lines: LineIndex<'i>,
     base_loc: SrcLoc,
     /// `-D` defines first, then `<default>`s in document order: the first entry for a name wins,
@@ -174,7 +173,7 @@ impl Attrs<'_> {
     }
 }
 
-impl<'d, 'i> XmlParser<'d, 'i> {
+impl<'i> XmlParser<'i> {
     fn loc_of(&self, node: Node) -> SrcLoc {
         let (line, col) = self.lines.line_and_column(node.range().start);
         at(&self.base_loc, line, col)
@@ -184,7 +183,7 @@ impl<'d, 'i> XmlParser<'d, 'i> {
         SceneError::new(self.loc_of(node), Some(describe_node(node)), message)
     }
 
-    fn parse_root(&mut self, root: Node<'d, 'i>) -> Result<Props, SceneError> {
+    fn parse_root(&mut self, root: Node<'_, 'i>) -> Result<Props, SceneError> {
         let tag = root.tag_name().name();
         if tag != "scene" {
             return Err(self.err(root, format!("the root element must be <scene>, found <{tag}>")));
@@ -266,7 +265,7 @@ impl<'d, 'i> XmlParser<'d, 'i> {
     /// Parses one child node of a plugin (or of the scene) into `parent`.
     fn parse_child(
         &mut self,
-        node: Node<'d, 'i>,
+        node: Node<'_, 'i>,
         parent: &mut Props,
         parent_plugin_type: Option<&str>,
         top_level: bool,
@@ -417,7 +416,7 @@ impl<'d, 'i> XmlParser<'d, 'i> {
     /// Parses a plugin element; returns its parameter name (possibly empty) and the shared object.
     fn parse_plugin(
         &mut self,
-        node: Node<'d, 'i>,
+        node: Node<'_, 'i>,
         tag: &str,
         attrs: &Attrs,
     ) -> Result<(String, Arc<Props>), SceneError> {

@@ -10,10 +10,10 @@ use roxmltree::Node;
 /// The transform being accumulated inside a `<transform>` element (f64 for exact composition).
 pub(super) struct TransformAcc(pub(super) DMat4);
 
-impl<'d, 'i> XmlParser<'d, 'i> {
+impl<'i> XmlParser<'i> {
     pub(super) fn parse_property(
         &self,
-        node: Node<'d, 'i>,
+        node: Node<'_, 'i>,
         tag: &str,
         attrs: &Attrs,
     ) -> Result<PropValue, SceneError> {
@@ -107,7 +107,7 @@ impl<'d, 'i> XmlParser<'d, 'i> {
         }
     }
 
-    fn parse_transform_op(&self, node: Node<'d, 'i>, acc: &mut TransformAcc) -> Result<(), SceneError> {
+    fn parse_transform_op(&self, node: Node<'_, 'i>, acc: &mut TransformAcc) -> Result<(), SceneError> {
         if node.is_comment() || node.is_pi() {
             return Ok(());
         }
