@@ -97,6 +97,19 @@ pub enum AccelKind {
     Bvh,
 }
 
+impl AccelKind {
+    /// Peak bytes per triangle that building this backend's structure takes beyond the meshes
+    /// themselves, with a margin: on 2000 tessellated spheres (32.8 M triangles) the build added 118
+    /// bytes per triangle for Embree and 297 for the Rust BVH to the 39 the meshes hold. The scene
+    /// loader checks this against the memory left before it commits to a build.
+    pub fn build_bytes_per_triangle(self) -> u64 {
+        match self {
+            AccelKind::Embree | AccelKind::EmbreeRobust => 128,
+            AccelKind::Bvh => 320,
+        }
+    }
+}
+
 /// Builds the acceleration structure for `meshes` with the chosen backend. The meshes may be owned,
 /// borrowed or shared (`Arc<TriangleMesh>`): the backends copy what they need, so there is no reason
 /// for the caller to clone its meshes first.

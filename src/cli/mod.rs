@@ -122,6 +122,67 @@ fn install_ctrlc_handler(message: &'static str) {
     });
 }
 
+/// `--max-memory SIZE`, shared by the commands that render for long.
+#[derive(Args, Debug, Clone, Default)]
+pub struct MemoryArgs {
+    /// Cap on resident memory, e.g. 4G or 512M: inputs that would not fit under it are refused while
+    /// the scene loads, and a render that grows past it stops, writes the image so far and exits
+    /// with status 1 (instead of the kernel's out-of-memory kill losing everything).
+    #[arg(long, value_name = "SIZE", value_parser = crate::resources::parse_size)]
+    pub max_memory: Option<u64>,
+}
+
+/// How often the memory watch reads the resident size: a render's memory grows by allocations of
+/// tiles, layers and chains, so a tenth of a second is early enough and costs nothing measurable.
+const MEMORY_POLL: std::time::Duration = std::time::Duration::from_millis(100);
+
+impl MemoryArgs {
+    /// Sets the cap for the loaders; call before loading the scene.
+    fn apply(&self) {
+        if let Some(cap) = self.max_memory {
+            crate::resources::set_memory_cap(cap);
+        }
+    }
+
+    /// Runs `work` while a thread polls the resident memory; past the cap it sets `CANCEL`, so the
+    /// render stops as a Ctrl-C stops it, and the overshoot (resident bytes, cap) is returned.
+    fn watch<T>(&self, work: impl FnOnce() -> T) -> (T, Option<(u64, u64)>) {
+        if self.max_memory.is_none() {
+            return (work(), None);
+        }
+        let done = AtomicBool::new(false);
+        std::thread::scope(|scope| {
+            let watcher = scope.spawn(|| {
+                while !done.load(Ordering::Relaxed) {
+                    if let Some(over) = crate::resources::resident_over_cap() {
+                        CANCEL.store(true, Ordering::SeqCst);
+                        return Some(over);
+                    }
+                    std::thread::park_timeout(MEMORY_POLL);
+                }
+                None
+            });
+            let result = work();
+            done.store(true, Ordering::Relaxed);
+            watcher.thread().unpark();
+            // The watcher only reads /proc and sets flags; it cannot panic short of a bug in std.
+            let over = watcher.join().unwrap_or(None);
+            (result, over)
+        })
+    }
+
+    /// The error a render that outgrew the cap ends with, after its outputs are written.
+    fn exceeded(over: (u64, u64), outputs: &str) -> anyhow::Error {
+        let (rss, cap) = over;
+        anyhow!(
+            "the render's resident memory reached {}, over --max-memory {}: it stopped early and {outputs} \
+             holds the image so far",
+            crate::resources::human_size(rss),
+            crate::resources::human_size(cap)
+        )
+    }
+}
+
 pub fn run(cli: Cli) -> anyhow::Result<i32> {
     match cli.command {
         Command::Render(args) => render::run_render(args),

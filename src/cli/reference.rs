@@ -3,8 +3,8 @@
 
 use super::render::metadata;
 use super::{
-    check_seconds, install_ctrlc_handler, load, load_reference, lookup, parse_accel, thread_pool, SceneArgs,
-    CANCEL,
+    check_seconds, install_ctrlc_handler, load, load_reference, lookup, parse_accel, thread_pool, MemoryArgs,
+    SceneArgs, CANCEL,
 };
 use crate::image::{read_exr_metadata, write_image, ImageBuf};
 use crate::registry::{self, IntegratorKind};
@@ -54,6 +54,8 @@ pub struct ReferenceArgs {
     /// No progress bar or summary.
     #[arg(short, long)]
     pub quiet: bool,
+    #[command(flatten)]
+    pub memory: MemoryArgs,
 }
 
 /// What a resumed reference starts from.
@@ -167,6 +169,7 @@ pub fn run_reference(args: ReferenceArgs) -> anyhow::Result<i32> {
     if args.spp == Some(0) {
         bail!("--spp must be at least 1");
     }
+    args.memory.apply();
     let scene = load(&args.scene, parse_accel(&args.accel)?)?;
     let earlier = if args.resume {
         if !args.output.is_file() {
@@ -213,46 +216,51 @@ pub fn run_reference(args: ReferenceArgs) -> anyhow::Result<i32> {
         threads,
         segments: earlier.as_ref().map_or(1, |e| e.segments + 1),
     };
-    let output = std::thread::scope(|scope| {
-        // The sink must be 'static; it hands snapshots to this scope through a channel instead of
-        // borrowing the scene, and a writer thread here saves them while the render goes on.
-        let (send, receive) = std::sync::mpsc::channel::<Snapshot>();
-        let writer = scope.spawn(|| {
-            for s in receive {
-                let stats = RenderStats {
-                    samples: s.samples,
-                    min_spp: s.spp,
-                    elapsed: s.elapsed,
-                    ..Default::default()
-                };
-                if let Err(e) = info.write(&args.output, earlier.as_ref(), &s.image, &stats, &s.extra, false)
-                {
-                    // The render goes on: the next checkpoint or the final write may still succeed.
-                    eprintln!("warning: checkpoint not written: {e:#}");
+    let (output, over_memory) = args.memory.watch(|| {
+        std::thread::scope(|scope| {
+            // The sink must be 'static; it hands snapshots to this scope through a channel instead of
+            // borrowing the scene, and a writer thread here saves them while the render goes on.
+            let (send, receive) = std::sync::mpsc::channel::<Snapshot>();
+            let writer = scope.spawn(|| {
+                for s in receive {
+                    let stats = RenderStats {
+                        samples: s.samples,
+                        min_spp: s.spp,
+                        elapsed: s.elapsed,
+                        ..Default::default()
+                    };
+                    if let Err(e) =
+                        info.write(&args.output, earlier.as_ref(), &s.image, &stats, &s.extra, false)
+                    {
+                        // The render goes on: the next checkpoint or the final write may still succeed.
+                        eprintln!("warning: checkpoint not written: {e:#}");
+                    }
                 }
-            }
-        });
-        let interval = Duration::from_secs_f64(args.checkpoint_minutes * 60.0);
-        let end = args.time.map(Duration::from_secs_f64);
-        // Without a time limit the checkpoints run on for as long as 10 000 intervals.
-        let times: Vec<Duration> =
-            (1..=10_000u32).map(|k| interval * k).take_while(|t| end.is_none_or(|end| *t < end)).collect();
-        let sink = move |s: &Snapshot| {
-            let _ = send.send(s.clone());
-        };
-        let options = RenderOptions {
-            spp: args.spp.or(if args.time.is_some() { None } else { Some(scene.spp) }),
-            time_limit: end,
-            seed,
-            progress: !args.quiet,
-            snapshots: Some(SnapshotHook { times, sink: Arc::new(sink) }),
-            first_sample,
-        };
-        let output = pool.install(|| integrator.render(&scene, &options, &CANCEL));
-        // Dropping the options drops the sink and with it the sender, which ends the writer's loop.
-        drop(options);
-        let _ = writer.join();
-        output
+            });
+            let interval = Duration::from_secs_f64(args.checkpoint_minutes * 60.0);
+            let end = args.time.map(Duration::from_secs_f64);
+            // Without a time limit the checkpoints run on for as long as 10 000 intervals.
+            let times: Vec<Duration> = (1..=10_000u32)
+                .map(|k| interval * k)
+                .take_while(|t| end.is_none_or(|end| *t < end))
+                .collect();
+            let sink = move |s: &Snapshot| {
+                let _ = send.send(s.clone());
+            };
+            let options = RenderOptions {
+                spp: args.spp.or(if args.time.is_some() { None } else { Some(scene.spp) }),
+                time_limit: end,
+                seed,
+                progress: !args.quiet,
+                snapshots: Some(SnapshotHook { times, sink: Arc::new(sink) }),
+                first_sample,
+            };
+            let output = pool.install(|| integrator.render(&scene, &options, &CANCEL));
+            // Dropping the options drops the sink and with it the sender, which ends the writer's loop.
+            drop(options);
+            let _ = writer.join();
+            output
+        })
     });
     let stats = &output.stats;
     info.write(
@@ -275,6 +283,9 @@ pub fn run_reference(args: ReferenceArgs) -> anyhow::Result<i32> {
             kind.name(),
             if stats.interrupted { " (interrupted; continue with --resume)" } else { "" }
         );
+    }
+    if let Some(over) = over_memory {
+        return Err(MemoryArgs::exceeded(over, &args.output.display().to_string()));
     }
     Ok(if stats.interrupted { 130 } else { 0 })
 }

@@ -4,7 +4,7 @@
 
 use super::{
     check_output_paths, install_ctrlc_handler, load, parse_accel, parse_hslt_direction, thread_pool,
-    SceneArgs, CANCEL,
+    MemoryArgs, SceneArgs, CANCEL,
 };
 use crate::image::{ImageBuf, Metadata};
 use crate::metropolis::direct::DirectPass;
@@ -102,6 +102,8 @@ pub struct RenderArgs {
     /// No progress bar or summary.
     #[arg(short, long)]
     pub quiet: bool,
+    #[command(flatten)]
+    pub memory: MemoryArgs,
 }
 
 pub(super) fn run_render(args: RenderArgs) -> anyhow::Result<i32> {
@@ -114,6 +116,7 @@ pub(super) fn run_render(args: RenderArgs) -> anyhow::Result<i32> {
     if args.spp == Some(0) {
         bail!("--spp must be at least 1");
     }
+    args.memory.apply();
     let scene = load(&args.scene, parse_accel(&args.accel)?)?;
     let kind_name = args.integrator.clone().unwrap_or_else(|| scene.integrator.kind.clone());
     let kind = IntegratorKind::parse(&kind_name).map_err(anyhow::Error::msg)?;
@@ -201,7 +204,8 @@ pub(super) fn run_render(args: RenderArgs) -> anyhow::Result<i32> {
     install_ctrlc_handler("finishing the current tiles and writing the image so far");
     let pool = thread_pool(args.threads)?;
     let threads = pool.current_num_threads();
-    let output = pool.install(|| integrator.render(&scene, &options, &CANCEL));
+    let (output, over_memory) =
+        args.memory.watch(|| pool.install(|| integrator.render(&scene, &options, &CANCEL)));
     let stats = output.stats;
     let image = output.film.to_image();
     let mut meta = metadata(&scene, kind.name(), &options, limits, threads, &stats);
@@ -223,6 +227,10 @@ pub(super) fn run_render(args: RenderArgs) -> anyhow::Result<i32> {
     if !args.quiet {
         print_summary(&args.output, &stats, threads);
         print_metropolis_summary(&meta);
+    }
+    if let Some(over) = over_memory {
+        let names: Vec<String> = args.output.iter().map(|o| o.display().to_string()).collect();
+        return Err(MemoryArgs::exceeded(over, &names.join(", ")));
     }
     Ok(if stats.interrupted { 130 } else { 0 })
 }

@@ -285,10 +285,20 @@ impl Integrator for PathMlt {
         let chains_start = Instant::now();
         let mut mutation_settings = self.settings.mutation.clone();
         mutation_settings.large_step_strategies = StrategyPmf::from_histogram(&seeds.by_strategy, &self.bdpt);
+        // Starting a million chains takes seconds and gigabytes: a cancel (Ctrl-C, --max-memory) stops it too.
         let started: Vec<_> = (0..n_chains)
             .into_par_iter()
-            .map(|c| self.start_chain(scene, &seeds, &mutation_settings, seed, c))
+            .map(|c| match cancel.load(Ordering::Relaxed) {
+                true => (None, 0),
+                false => self.start_chain(scene, &seeds, &mutation_settings, seed, c),
+            })
             .collect();
+        if cancel.load(Ordering::Relaxed) {
+            stats.interrupted = true;
+            film.splat_scale = 0.0;
+            stats.elapsed = start_time.elapsed();
+            return RenderOutput { film, stats, metadata };
+        }
         let redraws: usize = started.iter().map(|(_, r)| r).sum();
         metadata.push(("hslt.mlt.seed_redraws".into(), redraws.to_string()));
         let mut chains: Vec<Box<dyn RunningChain + '_>> = started

@@ -98,7 +98,7 @@ impl Scene {
     pub fn load(path: &Path, options: &LoadOptions) -> anyhow::Result<Scene> {
         let root = xml::parse_file(path, &options.defines)?;
         let base_dir = path.parent().unwrap_or(Path::new(".")).to_path_buf();
-        let mut builder = Builder::default();
+        let mut builder = Builder::new(options.accel);
         for (_, obj) in root.objects() {
             builder.add(obj, &base_dir)?;
         }
@@ -109,7 +109,7 @@ impl Scene {
     pub fn load_str(text: &str, path: &Path, options: &LoadOptions) -> anyhow::Result<Scene> {
         let root = xml::parse_str(text, path, &options.defines)?;
         let base_dir = path.parent().unwrap_or(Path::new(".")).to_path_buf();
-        let mut builder = Builder::default();
+        let mut builder = Builder::new(options.accel);
         for (_, obj) in root.objects() {
             builder.add(obj, &base_dir)?;
         }
@@ -188,9 +188,37 @@ struct Builder {
     bsdf_cache: HashMap<*const Props, Arc<dyn Bsdf>>,
     features: SceneFeatures,
     warnings: Vec<String>,
+    /// Bytes per triangle the ray-query build will take (`AccelKind::build_bytes_per_triangle`).
+    build_bytes_per_triangle: u64,
+    /// Shapes' bytes added since the memory budget was last checked.
+    unchecked_bytes: u64,
 }
 
+/// Shapes are checked against the memory budget once this many bytes of them have accumulated (and
+/// always before the build): a check reads /proc, too slow to do for each of 10⁵ small shapes.
+const BUDGET_CHECK_BYTES: u64 = 64 << 20;
+
 impl Builder {
+    fn new(accel: AccelKind) -> Self {
+        Builder { build_bytes_per_triangle: accel.build_bytes_per_triangle(), ..Default::default() }
+    }
+
+    /// The memory the scene's geometry will need for the ray-query build must still be free: a scene
+    /// of a million tessellated spheres is an error naming the shape where it ran out, not an abort
+    /// on a failed allocation (#33). Each check covers every triangle so far, as none of the build's
+    /// memory is taken before it starts.
+    /// `always` is false while shapes are added, true just before the build.
+    fn check_geometry_fits(&mut self, added_triangles: usize, always: bool) -> Result<(), String> {
+        self.unchecked_bytes += added_triangles as u64 * self.build_bytes_per_triangle;
+        if !always && self.unchecked_bytes < BUDGET_CHECK_BYTES {
+            return Ok(());
+        }
+        self.unchecked_bytes = 0;
+        let build = self.features.triangles as u64 * self.build_bytes_per_triangle;
+        let what = format!("building the ray queries of {} triangles", self.features.triangles);
+        crate::resources::check_fits(build, &what)
+    }
+
     fn add(&mut self, obj: &Arc<Props>, base_dir: &Path) -> anyhow::Result<()> {
         match obj.tag.as_str() {
             "sensor" => {
@@ -273,6 +301,7 @@ impl Builder {
             self.lights.push(Light::Area(area));
         }
         self.features.triangles += mesh.triangle_count();
+        self.check_geometry_fits(mesh.triangle_count(), false).map_err(|e| obj.error(e))?;
         self.shapes.push(Shape { id, mesh, bsdf, light });
         Ok(())
     }
@@ -314,6 +343,7 @@ impl Builder {
             bounds.expand(camera.position());
         }
         // The backends borrow the meshes: no copy of the geometry while the structure is built.
+        self.check_geometry_fits(0, true).map_err(|e| SceneError::file(path, e))?;
         let meshes: Vec<Arc<TriangleMesh>> = self.shapes.iter().map(|s| Arc::clone(&s.mesh)).collect();
         let accel = crate::accel::build(options.accel, &meshes)?;
         let radius = bounds.radius().max(1e-3);
