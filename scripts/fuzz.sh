@@ -3,7 +3,9 @@
 #   scripts/fuzz.sh SECONDS [TARGET ...]    (targets: scene_xml obj ply exr png; default all)
 # Installs cargo-afl if missing, builds fuzz/ with AFL instrumentation, runs each target for SECONDS
 # from fuzz/corpus/<target> into target/fuzz/<target>, and exits 1 if any target saved a crash or hang
-# (copied to fuzz/crashes/<target>/ so it can become a regression input in fuzz/corpus).
+# (copied to fuzz/crashes/<target>/ so it can become a regression input in fuzz/regressions), or 2 if
+# afl-fuzz could not run here at all (no crash found, but nothing fuzzed either).
+# FUZZ_TIMEOUT_MS (default 2000): an input taking longer than this counts as a hang.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 seconds=${1:?usage: scripts/fuzz.sh SECONDS [TARGET ...]}
@@ -11,19 +13,26 @@ shift
 targets=("$@")
 if [ ${#targets[@]} -eq 0 ]; then targets=(scene_xml obj ply exr png); fi
 if ! cargo afl --version >/dev/null 2>&1; then
-    cargo install --locked cargo-afl
+    cargo install --locked cargo-afl || { echo "fuzz: cannot install cargo-afl here"; exit 2; }
 fi
-(cd fuzz && cargo afl build --release --locked)
+# A harness that no longer builds is our bug (the fuzz workspace is outside `cargo test`): status 1.
+(cd fuzz && cargo afl build --release --locked) || { echo "fuzz: the fuzz harness does not build"; exit 1; }
 export AFL_SKIP_CPUFREQ=1 AFL_I_DONT_CARE_ABOUT_MISSING_CRASHES=1 AFL_NO_UI=1 AFL_NO_AFFINITY=1
+timeout_ms=${FUZZ_TIMEOUT_MS:-2000}
 status=0
+not_started=0
 for t in "${targets[@]}"; do
     out=target/fuzz/$t
     rm -rf "$out"
     mkdir -p "$out"
-    # -t: a scene that takes more than 2 s to load counts as a hang.
-    cargo afl fuzz -V "$seconds" -t 2000 -i "fuzz/corpus/$t" -o "$out" fuzz/target/release/hslt-fuzz "$t" \
-        >"$out/afl.log" 2>&1 || { echo "fuzz: afl-fuzz failed for $t (see $out/afl.log)"; status=1; continue; }
     stats=$out/default/fuzzer_stats
+    if ! cargo afl fuzz -V "$seconds" -t "$timeout_ms" -i "fuzz/corpus/$t" -o "$out" \
+        fuzz/target/release/hslt-fuzz "$t" >"$out/afl.log" 2>&1 || [ ! -s "$stats" ]; then
+        echo "fuzz: afl-fuzz did not run for $t; the end of $out/afl.log:"
+        tail -n 15 "$out/afl.log" | sed 's/^/    /'
+        not_started=1
+        continue
+    fi
     execs=$(awk -F' *: *' '$1=="execs_done"{print $2}' "$stats")
     cov=$(awk -F' *: *' '$1=="bitmap_cvg"{print $2}' "$stats")
     crashes=$(awk -F' *: *' '$1=="saved_crashes"{print $2}' "$stats")
@@ -36,4 +45,5 @@ for t in "${targets[@]}"; do
         status=1
     fi
 done
+if [ $status -eq 0 ] && [ $not_started -ne 0 ]; then status=2; fi
 exit $status

@@ -285,3 +285,65 @@ fn nesting_beyond_the_limit_is_an_error_not_a_stack_overflow() {
     let abyss = parse_str(&nested_scene(200_000), path, &[]).unwrap_err();
     assert!(abyss.message.contains("nested more than"), "{abyss}");
 }
+
+/// `<include>` (Mitsuba's): main.xml assembles merged.xml from three files in parts/, one of them
+/// included by another part (relative to that part), with `$param` substitution in a file name, ids
+/// declared in one part and referenced in another, and a mesh named in a part that resolves against
+/// the scene's directory. Both files must give the same image, bit for bit.
+#[test]
+fn a_scene_split_across_included_files_renders_as_the_merged_file() {
+    use hslt::cli::{load_scene, render_scene};
+    use hslt::registry::IntegratorKind;
+    let split = load_scene(&data("include/main.xml"), &[]).unwrap();
+    let merged = load_scene(&data("include/merged.xml"), &[]).unwrap();
+    assert_eq!(split.shapes.len(), 4);
+    assert_eq!(split.lights.len(), merged.lights.len());
+    let (a, _) = render_scene(&split, IntegratorKind::Path, 4, 3);
+    let (b, _) = render_scene(&merged, IntegratorKind::Path, 4, 3);
+    let mean = b.data.iter().map(|&x| x as f64).sum::<f64>() / b.data.len() as f64;
+    assert!(mean > 0.01, "the merged scene renders black ({mean})");
+    assert_eq!(a.data, b.data, "the included scene renders differently from the merged one");
+    // The errors of an included file name that file and line, and where it was included.
+    let e = parse_file(&data("include/broken-main.xml"), &[]).unwrap_err().to_string();
+    assert!(e.contains("parts/broken.xml:3:"), "{e}");
+    assert!(e.contains("included at") && e.contains("broken-main.xml:3:"), "{e}");
+}
+
+#[test]
+fn an_include_cycle_is_an_error_naming_the_chain_of_files() {
+    let e = parse_file(&data("include/cycle-a.xml"), &[]).unwrap_err().to_string();
+    assert!(e.contains("<include> cycle: "), "{e}");
+    let chain = e.split("<include> cycle: ").nth(1).unwrap();
+    let files: Vec<&str> = chain.split(" includes ").collect();
+    assert_eq!(files.len(), 3, "{e}");
+    assert!(files[0].ends_with("cycle-a.xml") && files[1].ends_with("cycle-b.xml"), "{e}");
+    assert!(files[2].starts_with(&*data("include/cycle-a.xml").to_string_lossy()), "{e}");
+    // A missing file, and a file that includes itself, are errors too.
+    let dir = std::env::temp_dir().join(format!("hslt-include-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let me = dir.join("self.xml");
+    std::fs::write(&me, "<scene version=\"3.0.0\"><include filename=\"self.xml\"/></scene>").unwrap();
+    let e = parse_file(&me, &[]).unwrap_err().to_string();
+    assert!(e.contains("cycle") && e.contains("self.xml includes"), "{e}");
+    let missing = dir.join("missing.xml");
+    std::fs::write(&missing, "<scene version=\"3.0.0\">\n<include filename=\"nowhere.xml\"/></scene>")
+        .unwrap();
+    let e = parse_file(&missing, &[]).unwrap_err().to_string();
+    assert!(e.contains("missing.xml:2:1") && e.contains("nowhere.xml"), "{e}");
+    // Only regular files: /dev/zero would be read forever.
+    let zero = dir.join("zero.xml");
+    std::fs::write(&zero, "<scene version=\"3.0.0\"><include filename=\"/dev/zero\"/></scene>").unwrap();
+    let e = parse_file(&zero, &[]).unwrap_err().to_string();
+    assert!(e.contains("not a regular file"), "{e}");
+    // A chain of distinct files deeper than the limit.
+    let depth = hslt::scene::xml::MAX_INCLUDE_DEPTH + 2;
+    for k in 0..depth {
+        let body =
+            if k + 1 < depth { format!("<include filename=\"d{}.xml\"/>", k + 1) } else { String::new() };
+        std::fs::write(dir.join(format!("d{k}.xml")), format!("<scene version=\"3.0.0\">{body}</scene>"))
+            .unwrap();
+    }
+    let e = parse_file(&dir.join("d0.xml"), &[]).unwrap_err().to_string();
+    assert!(e.contains("nested more than"), "{e}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -54,6 +54,8 @@ pub fn feed_with(input: Input, data: &[u8], accel: AccelKind) -> anyhow::Result<
     let options = LoadOptions { defines: Vec::new(), accel };
     match input {
         Input::SceneXml => {
+            // A file for `<include>` to find: the fuzzed scene may include it, or itself (a cycle).
+            std::fs::write(dir.0.join("part.xml"), INCLUDED_PART)?;
             let text = String::from_utf8_lossy(data);
             Scene::load_str(&text, &dir.0.join("scene.xml"), &options).map(|_| ())
         }
@@ -76,6 +78,13 @@ pub fn feed_with(input: Input, data: &[u8], accel: AccelKind) -> anyhow::Result<
         }
     }
 }
+
+/// The file next to a fuzzed scene that its `<include filename="part.xml"/>` reads.
+const INCLUDED_PART: &str = r#"<scene version="3.0.0">
+    <default name="part_reflectance" value="0.5"/>
+    <bsdf type="diffuse" id="part"><rgb name="reflectance" value="$part_reflectance"/></bsdf>
+    <shape type="rectangle"><ref id="part"/></shape>
+</scene>"#;
 
 /// A folder removed when dropped, unique per process and call.
 struct TempDir(PathBuf);
