@@ -255,3 +255,56 @@ fn declared_sizes_beyond_memory_are_errors_not_aborts() {
     assert!(ok.status.success(), "{}", stderr(&ok));
     let _ = std::fs::remove_dir_all(&out_dir);
 }
+
+/// `--stats-json` (#32): for a pixel integrator and the Metropolis ones, a JSON document with the
+/// render's statistics, equal to the `hslt.*` fields of the EXR header written beside it.
+#[test]
+fn stats_json_holds_the_render_statistics_of_every_integrator() {
+    let dir = tmp_dir("stats");
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/cornell-box/scene.xml");
+    for integrator in ["pt", "bdpt", "pssmlt", "hslt+mlt"] {
+        let json = dir.join(format!("{integrator}.json"));
+        let exr = dir.join(format!("{integrator}.exr"));
+        let out = hslt()
+            .args(["render", scene.to_str().unwrap(), "-D", "resx=16", "-D", "resy=12", "--spp", "2"])
+            .args(["--seed", "5", "--integrator", integrator, "-q", "-o", exr.to_str().unwrap()])
+            .args(["--stats-json", json.to_str().unwrap()])
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{integrator}: {}", stderr(&out));
+        let doc: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+        assert_eq!(doc["integrator"], integrator, "{doc}");
+        assert_eq!(doc["seed"], 5);
+        assert_eq!((doc["width"].as_u64(), doc["height"].as_u64()), (Some(16), Some(12)));
+        assert_eq!(doc["interrupted"], false);
+        assert_eq!(doc["invalid_samples"], 0);
+        let wall = doc["elapsed_seconds"].as_f64().unwrap();
+        let cpu = doc["cpu_seconds"].as_f64().unwrap();
+        assert!(wall > 0.0 && cpu > 0.0, "{doc}");
+        assert!(doc["rays"].as_u64().unwrap() > 0 && doc["samples"].as_u64().unwrap() > 0, "{doc}");
+        assert!(doc["samples_per_second"].as_f64().unwrap() > 0.0);
+        assert!(doc["peak_memory_bytes"].as_u64().unwrap() > 1 << 20);
+        if integrator == "pt" || integrator == "bdpt" {
+            assert_eq!(doc["spp"], 2);
+            assert!(doc.get("mlt").is_none());
+        } else {
+            let mlt = &doc["mlt"];
+            assert!(mlt["mutations"].as_u64().unwrap() > 0, "{doc}");
+            let acceptance = mlt["acceptance"].as_f64().unwrap();
+            assert!((0.0..=1.0).contains(&acceptance));
+            if integrator == "hslt+mlt" {
+                assert!(mlt["lens"]["proposed"].as_u64().unwrap() > 0, "{doc}");
+                assert!(mlt["hslt"]["proposed"].is_u64(), "{doc}");
+            }
+        }
+        // The EXR header holds the same fields.
+        let meta = hslt::image::read_exr_metadata(&exr).unwrap();
+        let from_header = hslt::cli::stats_json::stats_document(&meta);
+        assert_eq!(from_header, doc, "{integrator}: the EXR header and the JSON differ");
+    }
+    expect_error(
+        &["render", scene.to_str().unwrap(), "-o", "x.exr", "--stats-json", "/nonexistent-dir/s.json"],
+        &["--stats-json", "/nonexistent-dir"],
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}

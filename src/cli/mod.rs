@@ -12,6 +12,7 @@ pub mod plot_halfvector;
 mod reference;
 mod render;
 mod stability;
+pub mod stats_json;
 
 pub use bench::{BenchArgs, BenchCommand, BenchHsltArgs, BenchIntegratorsArgs, BenchRaysArgs};
 pub use compare::CompareArgs;

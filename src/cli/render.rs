@@ -104,10 +104,22 @@ pub struct RenderArgs {
     pub quiet: bool,
     #[command(flatten)]
     pub memory: MemoryArgs,
+    /// Also write the render's statistics as JSON (integrator, seed, resolution, samples, wall and
+    /// CPU seconds, rays, samples/s, dropped NaN/Inf samples, peak memory, and for the Metropolis
+    /// integrators each mutation's proposals, acceptance and failures): the `hslt.*` fields of the
+    /// EXR header, nested at their dots.
+    #[arg(long, value_name = "FILE")]
+    pub stats_json: Option<PathBuf>,
 }
 
 pub(super) fn run_render(args: RenderArgs) -> anyhow::Result<i32> {
     check_output_paths(&args.output)?;
+    if let Some(dir) = args.stats_json.as_ref().and_then(|p| p.parent()).filter(|d| !d.as_os_str().is_empty())
+    {
+        if !dir.is_dir() {
+            bail!("--stats-json: the directory {} does not exist", dir.display());
+        }
+    }
     if let Some(t) = args.time {
         if !(t > 0.0 && t.is_finite()) {
             bail!("--time must be a positive number of seconds");
@@ -213,6 +225,7 @@ pub(super) fn run_render(args: RenderArgs) -> anyhow::Result<i32> {
         meta.push(("hslt.min_depth".into(), args.min_depth.to_string()));
     }
     meta.extend(output.metadata);
+    meta.extend(process_metadata(&scene, &stats));
     let layers = output.film.layer_images();
     for out in &args.output {
         if layers.is_empty() {
@@ -227,6 +240,11 @@ pub(super) fn run_render(args: RenderArgs) -> anyhow::Result<i32> {
     if !args.quiet {
         print_summary(&args.output, &stats, threads);
         print_metropolis_summary(&meta);
+    }
+    if let Some(path) = &args.stats_json {
+        let text = serde_json::to_string_pretty(&super::stats_json::stats_document(&meta))? + "\n";
+        crate::report::write_atomic(path, text.as_bytes())
+            .with_context(|| format!("cannot write {}", path.display()))?;
     }
     if let Some(over) = over_memory {
         let names: Vec<String> = args.output.iter().map(|o| o.display().to_string()).collect();
@@ -257,6 +275,25 @@ pub(super) fn metadata(
         ("hslt.invalid_samples".into(), stats.invalid_samples.to_string()),
         ("hslt.interrupted".into(), stats.interrupted.to_string()),
     ]
+}
+
+/// What the process as a whole spent, for the metadata (and so --stats-json): the resolution, rays,
+/// throughput, CPU time and peak memory.
+fn process_metadata(scene: &Scene, stats: &RenderStats) -> Metadata {
+    let secs = stats.elapsed.as_secs_f64().max(1e-9);
+    let mut meta: Metadata = vec![
+        ("hslt.width".into(), scene.film.width.to_string()),
+        ("hslt.height".into(), scene.film.height.to_string()),
+        ("hslt.rays".into(), stats.rays.to_string()),
+        ("hslt.samples_per_second".into(), format!("{:.1}", stats.samples as f64 / secs)),
+    ];
+    if let Some(cpu) = crate::resources::cpu_seconds() {
+        meta.push(("hslt.cpu_seconds".into(), format!("{cpu:.3}")));
+    }
+    if let Some(peak) = crate::resources::peak_resident_bytes() {
+        meta.push(("hslt.peak_memory_bytes".into(), peak.to_string()));
+    }
+    meta
 }
 
 fn print_summary(outputs: &[PathBuf], stats: &RenderStats, threads: usize) {

@@ -84,6 +84,23 @@ pub fn resident_bytes() -> Option<u64> {
     kib_field(&std::fs::read_to_string("/proc/self/status").ok()?, "VmRSS:")
 }
 
+/// The most resident memory this process has had (VmHWM), in bytes.
+pub fn peak_resident_bytes() -> Option<u64> {
+    kib_field(&std::fs::read_to_string("/proc/self/status").ok()?, "VmHWM:")
+}
+
+/// CPU seconds this process has used, user and system, over all its threads (/proc/self/stat's utime
+/// and stime, in USER_HZ ticks, which Linux fixes at 100 for /proc on every architecture we build for).
+pub fn cpu_seconds() -> Option<f64> {
+    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
+    // The command name (field 2) is in parentheses and may hold spaces: count fields after its ')'.
+    let rest = &stat[stat.rfind(')')? + 1..];
+    let fields: Vec<&str> = rest.split_whitespace().collect();
+    // After ')' come state (field 3), ..., utime (14) and stime (15): indices 11 and 12 here.
+    let ticks: u64 = fields.get(11)?.parse::<u64>().ok()? + fields.get(12)?.parse::<u64>().ok()?;
+    Some(ticks as f64 / 100.0)
+}
+
 /// The resident memory, when a cap is set and it is over it: what a render's watchdog polls.
 pub fn resident_over_cap() -> Option<(u64, u64)> {
     let cap = memory_cap()?;
@@ -177,6 +194,21 @@ mod tests {
         assert!(check_fits(1 << 20, "a megabyte").is_ok());
         assert!(try_filled_vec(usize::MAX / 64, 0u8, "a huge vector").is_err());
         assert_eq!(try_filled_vec(4, 7u16, "four").unwrap(), vec![7; 4]);
+    }
+
+    #[test]
+    fn cpu_time_grows_with_work_and_peak_memory_is_at_least_the_current() {
+        let (Some(before), Some(rss)) = (cpu_seconds(), resident_bytes()) else {
+            return; // no /proc
+        };
+        let start = std::time::Instant::now();
+        let mut x = 1.0f64;
+        while start.elapsed().as_secs_f64() < 0.3 {
+            x = std::hint::black_box(x.sqrt() + 1.0);
+        }
+        let after = cpu_seconds().unwrap();
+        assert!(after - before >= 0.1 && after - before < 30.0, "{before} -> {after} ({x})");
+        assert!(peak_resident_bytes().unwrap() >= rss);
     }
 
     #[test]
