@@ -308,3 +308,62 @@ fn stats_json_holds_the_render_statistics_of_every_integrator() {
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// `--aov albedo,normal,depth` (#32): EXR layers named and channelled as OIDN and Blender expect,
+/// albedo in [0, 1], unit normals and positive depths on geometry, the background's depth far away;
+/// PNG outputs stay beauty only.
+#[test]
+fn aov_layers_hold_albedo_normals_and_depth() {
+    let dir = tmp_dir("aov");
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/materials/scene.xml");
+    let exr = dir.join("aov.exr");
+    let png = dir.join("aov.png");
+    let out = hslt()
+        .args(["render", scene.to_str().unwrap(), "-D", "resx=32", "-D", "resy=24", "--spp", "2", "-q"])
+        .args(["--aov", "albedo,normal,depth", "-o", exr.to_str().unwrap(), "-o", png.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", stderr(&out));
+    let layers = hslt::image::read_exr_layers(&exr).unwrap();
+    let names: Vec<&str> = layers.iter().map(|(n, _)| n.as_str()).collect();
+    assert_eq!(names, ["combined", "albedo", "normal", "depth"]);
+    let (albedo, normal, depth) = (&layers[1].1, &layers[2].1, &layers[3].1);
+    assert_eq!((albedo.channels, normal.channels, depth.channels), (3, 3, 1));
+    assert!(albedo.data.iter().all(|&a| (0.0..=1.0).contains(&a)));
+    assert!(albedo.data.iter().any(|&a| a > 0.1), "the albedo is black");
+    let mut unit = 0;
+    for p in 0..depth.data.len() {
+        let d = depth.data[p];
+        assert!(d.is_finite() && d > 0.0, "pixel {p}: depth {d}");
+        let n = &normal.data[p * 3..p * 3 + 3];
+        let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+        assert!(len <= 1.0 + 1e-4, "pixel {p}: |n| = {len}");
+        // A pixel's normal is the mean over its samples: unit wherever they all saw one flat surface.
+        if (len - 1.0).abs() < 1e-3 {
+            unit += 1;
+        }
+    }
+    assert!(unit * 2 > depth.data.len(), "only {unit} pixels have unit normals");
+    // On the Cornell box most pixels see the white diffuse walls, whose albedo is their reflectance.
+    let cbox = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/cornell-box/scene.xml");
+    let cbox_exr = dir.join("cbox.exr");
+    let out = hslt()
+        .args(["render", cbox.to_str().unwrap(), "-D", "resx=16", "-D", "resy=16", "--spp", "1", "-q"])
+        .args(["--aov", "albedo", "-o", cbox_exr.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", stderr(&out));
+    let cbox_albedo = &hslt::image::read_exr_layers(&cbox_exr).unwrap()[1].1;
+    let white = cbox_albedo
+        .data
+        .chunks(3)
+        .filter(|a| (a[0] - 0.725).abs() < 1e-3 && (a[1] - 0.71).abs() < 1e-3 && (a[2] - 0.68).abs() < 1e-3)
+        .count();
+    assert!(white * 3 > 16 * 16, "only {white} of 256 pixels have the walls' albedo");
+    // The PNG is the beauty image alone.
+    let png_image = hslt::image::read_image(&png, false).unwrap();
+    assert_eq!(png_image.channels, 3);
+    expect_error(&["render", scene.to_str().unwrap(), "-o", "x.png", "--aov", "albedo"], &["--aov", ".exr"]);
+    expect_error(&["render", scene.to_str().unwrap(), "-o", "x.exr", "--aov", "albedo,uv"], &["--aov", "uv"]);
+    let _ = std::fs::remove_dir_all(&dir);
+}

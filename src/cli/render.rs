@@ -7,6 +7,7 @@ use super::{
     MemoryArgs, SceneArgs, CANCEL,
 };
 use crate::image::{ImageBuf, Metadata};
+use crate::integrators::aov::{Aov, AovPass};
 use crate::metropolis::direct::DirectPass;
 use crate::metropolis::MutationKind;
 use crate::path::MisHeuristic;
@@ -110,6 +111,15 @@ pub struct RenderArgs {
     /// EXR header, nested at their dots.
     #[arg(long, value_name = "FILE")]
     pub stats_json: Option<PathBuf>,
+    /// Auxiliary EXR layers for denoisers, any of albedo,normal,depth: layers `albedo` (R,G,B),
+    /// `normal` (X,Y,Z, world space) and `depth` (Z) at the first non-specular surface, as Intel Open
+    /// Image Denoise and Blender name them, from a pass of --aov-spp samples per pixel beside the render.
+    /// PNG and other outputs stay beauty only.
+    #[arg(long, value_name = "LIST")]
+    pub aov: Option<String>,
+    /// Samples per pixel of the --aov pass.
+    #[arg(long, value_name = "N", default_value_t = 16)]
+    pub aov_spp: u32,
 }
 
 pub(super) fn run_render(args: RenderArgs) -> anyhow::Result<i32> {
@@ -127,6 +137,15 @@ pub(super) fn run_render(args: RenderArgs) -> anyhow::Result<i32> {
     }
     if args.spp == Some(0) {
         bail!("--spp must be at least 1");
+    }
+    let aov_list = args.aov.as_deref().map(Aov::parse_list).transpose().map_err(|e| anyhow!("--aov: {e}"))?;
+    if aov_list.is_some() {
+        if args.aov_spp == 0 {
+            bail!("--aov-spp must be at least 1");
+        }
+        if !args.output.iter().any(|o| o.extension().and_then(|e| e.to_str()) == Some("exr")) {
+            bail!("--aov writes EXR layers: give at least one output ending in .exr");
+        }
     }
     args.memory.apply();
     let scene = load(&args.scene, parse_accel(&args.accel)?)?;
@@ -227,13 +246,26 @@ pub(super) fn run_render(args: RenderArgs) -> anyhow::Result<i32> {
     meta.extend(output.metadata);
     meta.extend(process_metadata(&scene, &stats));
     let layers = output.film.layer_images();
+    let aovs = match &aov_list {
+        Some(list) if !CANCEL.load(std::sync::atomic::Ordering::Relaxed) => {
+            let aov_options =
+                RenderOptions { spp: Some(args.aov_spp), seed: args.seed ^ AOV_SEED, ..Default::default() };
+            let pass = AovPass { aovs: list.clone() };
+            let (film, _) = pool.install(|| crate::render::render(&scene, &pass, &aov_options, &CANCEL));
+            meta.push(("hslt.aov_spp".into(), args.aov_spp.to_string()));
+            aov_layers(list, film.layer_images())
+        }
+        _ => Vec::new(),
+    };
     for out in &args.output {
-        if layers.is_empty() {
+        let is_exr = out.extension().and_then(|e| e.to_str()) == Some("exr");
+        if layers.is_empty() && (aovs.is_empty() || !is_exr) {
             crate::image::write_image(out, &image, &meta)
         } else {
-            let mut all: Vec<(&str, &ImageBuf)> = vec![("combined", &image)];
-            all.extend(layers.iter().map(|(name, img)| (name.as_str(), img)));
-            crate::image::write_exr_layers(out, &all, &meta).map(|_| ())
+            let mut all: Vec<(&str, &ImageBuf, Option<&[&str]>)> = vec![("combined", &image, None)];
+            all.extend(layers.iter().map(|(name, img)| (name.as_str(), img, None)));
+            all.extend(aovs.iter().map(|(aov, img)| (aov.name(), img, Some(aov.channels()))));
+            crate::image::write_exr_parts(out, &all, &meta).map(|_| ())
         }
         .with_context(|| format!("cannot write {}", out.display()))?;
     }
@@ -275,6 +307,27 @@ pub(super) fn metadata(
         ("hslt.invalid_samples".into(), stats.invalid_samples.to_string()),
         ("hslt.interrupted".into(), stats.interrupted.to_string()),
     ]
+}
+
+/// Mixed into the seed of the --aov pass, so its samples are not the render's.
+const AOV_SEED: u64 = 0xA0F5_EED0_0000_0001;
+
+/// The AOV pass's film layers as images with each AOV's channel count (depth: one channel).
+fn aov_layers(aovs: &[Aov], layers: Vec<(String, ImageBuf)>) -> Vec<(Aov, ImageBuf)> {
+    aovs.iter()
+        .zip(layers)
+        .map(|(&aov, (_, img))| {
+            let channels = aov.channels().len();
+            if channels == img.channels {
+                return (aov, img);
+            }
+            let mut out = ImageBuf::new(img.width, img.height, channels);
+            for (dst, src) in out.data.chunks_mut(channels).zip(img.data.chunks(img.channels)) {
+                dst.copy_from_slice(&src[..channels]);
+            }
+            (aov, out)
+        })
+        .collect()
 }
 
 /// What the process as a whole spent, for the metadata (and so --stats-json): the resolution, rays,

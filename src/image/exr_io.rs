@@ -106,8 +106,12 @@ fn channel_names(channels: usize) -> anyhow::Result<&'static [&'static str]> {
     })
 }
 
-fn layer_channels(img: &ImageBuf) -> anyhow::Result<AnyChannels<FlatSamples>> {
-    let names = channel_names(img.channels)?;
+fn layer_channels(img: &ImageBuf, names: Option<&[&str]>) -> anyhow::Result<AnyChannels<FlatSamples>> {
+    let names = match names {
+        Some(names) if names.len() == img.channels => names,
+        Some(names) => anyhow::bail!("{} channel names for {} channels", names.len(), img.channels),
+        None => channel_names(img.channels)?,
+    };
     let pixels = img.width * img.height;
     let mut list: SmallVec<[AnyChannel<FlatSamples>; 4]> = SmallVec::new();
     for (c, name) in names.iter().enumerate() {
@@ -141,16 +145,16 @@ fn apply_metadata(attrs: &mut LayerAttributes, meta: &Metadata) -> anyhow::Resul
 
 /// Builds the in-memory EXR: one part per layer, metadata on the first part.
 fn build_image(
-    layers: &[(&str, &ImageBuf)],
+    layers: &[ExrPart],
     meta: &Metadata,
 ) -> anyhow::Result<Image<Layers<AnyChannels<FlatSamples>>>> {
-    let (_, main) = layers.first().ok_or_else(|| anyhow::anyhow!("no layers to write"))?;
+    let (_, main, _) = layers.first().ok_or_else(|| anyhow::anyhow!("no layers to write"))?;
     if main.width == 0 || main.height == 0 {
         anyhow::bail!("image is empty ({}x{})", main.width, main.height);
     }
     let mut names = std::collections::HashSet::new();
     let mut parts = Vec::with_capacity(layers.len());
-    for (index, (name, img)) in layers.iter().enumerate() {
+    for (index, (name, img, channels)) in layers.iter().enumerate() {
         img.check_layout().with_context(|| format!("layer {name:?}"))?;
         if (img.width, img.height) != (main.width, main.height) {
             anyhow::bail!(
@@ -184,7 +188,7 @@ fn build_image(
             (img.width, img.height),
             attrs,
             Encoding::SMALL_LOSSLESS,
-            layer_channels(img).with_context(|| format!("layer {name:?}"))?,
+            layer_channels(img, *channels).with_context(|| format!("layer {name:?}"))?,
         ));
     }
     let attributes = ImageAttributes::new(IntegerBounds::from_dimensions((main.width, main.height)));
@@ -192,11 +196,10 @@ fn build_image(
 }
 
 /// Writes the layers as one EXR file at `path` (not atomic by itself; `super` wraps it).
-pub(super) fn write_layers_to(
-    path: &Path,
-    layers: &[(&str, &ImageBuf)],
-    meta: &Metadata,
-) -> anyhow::Result<()> {
+/// One part to write: its name, pixels and channel names (`None`: R,G,B(,A) or Y(,A) by count).
+pub(super) type ExrPart<'a> = (&'a str, &'a ImageBuf, Option<&'a [&'a str]>);
+
+pub(super) fn write_layers_to(path: &Path, layers: &[ExrPart], meta: &Metadata) -> anyhow::Result<()> {
     let image = build_image(layers, meta)?;
     image.write().to_file(path).map_err(|e| anyhow::anyhow!("EXR encoding failed: {e}"))
 }
@@ -225,8 +228,15 @@ fn pick_channels(names: &[String]) -> Option<Vec<usize>> {
         if let (Some(r), Some(g), Some(b)) = (find(&full("R")), find(&full("G")), find(&full("B"))) {
             return Some([Some(r), Some(g), Some(b), alpha].into_iter().flatten().collect());
         }
+        // Auxiliary layers: normals (X, Y, Z) and depth (Z), as `--aov` writes them.
+        if let (Some(x), Some(y), Some(z)) = (find(&full("X")), find(&full("Y")), find(&full("Z"))) {
+            return Some(vec![x, y, z]);
+        }
         if let Some(y) = find(&full("Y")) {
             return Some([Some(y), alpha].into_iter().flatten().collect());
+        }
+        if let Some(z) = find(&full("Z")) {
+            return Some(vec![z]);
         }
     }
     None

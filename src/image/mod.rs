@@ -209,7 +209,7 @@ pub fn write_image_with_report(path: &Path, img: &ImageBuf, meta: &Metadata) -> 
     let (clean, replaced) = img.sanitized();
     let meta = with_non_finite_record(meta, replaced);
     write_atomically(path, |tmp| match format {
-        Format::Exr => exr_io::write_layers_to(tmp, &[("", &clean)], &meta),
+        Format::Exr => exr_io::write_layers_to(tmp, &[("", &clean, None)], &meta),
         _ => write_non_exr(tmp, format, &clean, &meta),
     })?;
     Ok(WriteReport { non_finite_replaced: replaced })
@@ -238,19 +238,31 @@ pub fn write_exr_layers(
     layers: &[(&str, &ImageBuf)],
     meta: &Metadata,
 ) -> anyhow::Result<WriteReport> {
+    let parts: Vec<(&str, &ImageBuf, Option<&[&str]>)> =
+        layers.iter().map(|&(n, img)| (n, img, None)).collect();
+    write_exr_parts(path, &parts, meta)
+}
+
+/// As `write_exr_layers`, with channel names per layer where they are not the default R,G,B (or Y
+/// for one channel): e.g. X,Y,Z for normals, Z for depth.
+pub fn write_exr_parts(
+    path: &Path,
+    layers: &[(&str, &ImageBuf, Option<&[&str]>)],
+    meta: &Metadata,
+) -> anyhow::Result<WriteReport> {
     if output_format(path)? != Format::Exr {
         anyhow::bail!("{}: multi-layer output must have the .exr extension", path.display());
     }
     let mut cleaned = Vec::with_capacity(layers.len());
     let mut replaced = 0;
-    for (name, img) in layers {
+    for &(name, img, channels) in layers {
         img.check_layout().with_context(|| format!("{}: layer {name:?}", path.display()))?;
         let (clean, count) = img.sanitized();
         replaced += count;
-        cleaned.push((*name, clean));
+        cleaned.push((name, clean, channels));
     }
     let meta = with_non_finite_record(meta, replaced);
-    let refs: Vec<(&str, &ImageBuf)> = cleaned.iter().map(|(n, img)| (*n, img)).collect();
+    let refs: Vec<exr_io::ExrPart> = cleaned.iter().map(|(n, img, c)| (*n, img, *c)).collect();
     write_atomically(path, |tmp| exr_io::write_layers_to(tmp, &refs, &meta))?;
     Ok(WriteReport { non_finite_replaced: replaced })
 }

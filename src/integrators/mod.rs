@@ -3,6 +3,7 @@
 //! the film, so every integrator gets progress, time budgets and interruption for free. The Metropolis
 //! methods live in `metropolis`; `registry` builds either kind by name.
 
+pub mod aov;
 pub mod bdpt;
 mod path;
 

@@ -51,6 +51,12 @@ pub trait PixelIntegrator: Send + Sync {
     fn layers(&self) -> Vec<String> {
         Vec::new()
     }
+
+    /// Whether layer values may be negative (normals); radiance layers may not, and a sample with a
+    /// negative one is dropped as invalid like a NaN.
+    fn signed_layers(&self) -> bool {
+        false
+    }
 }
 
 /// The finished result of a render.

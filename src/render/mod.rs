@@ -308,6 +308,7 @@ fn render_tile(
     let mut out = SampleOutput::default();
     let mut splats = Vec::new();
     let mut layer_values = Vec::new();
+    let signed_layers = integrator.signed_layers();
     let (mut added, mut invalid) = (0u64, 0u64);
     for py in 0..tile.h {
         for px in 0..tile.w {
@@ -324,9 +325,10 @@ fn render_tile(
                 let l: Spectrum = integrator.li(scene, &ray, &mut sampler, &mut out);
                 let valid = |v: Spectrum| v.is_finite() && v.min_element() >= 0.0;
                 // A sample's estimates are kept or dropped together: its strategies' MIS weights assume all of them.
+                let layer_valid = |v: Spectrum| if signed_layers { v.is_finite() } else { valid(v) };
                 let all_valid = valid(l)
                     && out.splats.iter().all(|s| valid(s.value))
-                    && out.layer_values.iter().all(|&(_, v)| valid(v));
+                    && out.layer_values.iter().all(|&(_, v)| layer_valid(v));
                 if all_valid {
                     splats.extend_from_slice(&out.splats);
                     layer_values.extend(out.layer_values.iter().map(|&(layer, v)| (layer, x, y, v)));
