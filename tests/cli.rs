@@ -367,3 +367,79 @@ fn aov_layers_hold_albedo_normals_and_depth() {
     expect_error(&["render", scene.to_str().unwrap(), "-o", "x.exr", "--aov", "albedo,uv"], &["--aov", "uv"]);
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// Reads tev packets (u32 little-endian length including itself, then a type byte) until the peer
+/// closes; returns (type, payload) pairs.
+fn read_tev_packets(mut socket: std::net::TcpStream) -> Vec<(u8, Vec<u8>)> {
+    use std::io::Read;
+    let mut packets = Vec::new();
+    loop {
+        let mut len = [0u8; 4];
+        if socket.read_exact(&mut len).is_err() {
+            return packets;
+        }
+        let len = u32::from_le_bytes(len) as usize;
+        assert!(len >= 5, "a packet of {len} bytes");
+        let mut body = vec![0u8; len - 4];
+        socket.read_exact(&mut body).unwrap();
+        packets.push((body[0], body[1..].to_vec()));
+    }
+}
+
+/// `--tev` (#32) against a loopback listener that decodes what tev would receive: one create-image
+/// packet naming the image and its size, then update-image packets whose rows cover the image; for
+/// a pixel integrator and a Metropolis one. Without a listener, a warning and a normal render.
+#[test]
+fn tev_receives_a_create_and_updates_of_the_image() {
+    const CREATE: u8 = 4;
+    const UPDATE: u8 = 6;
+    let dir = tmp_dir("tev");
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/cornell-box/scene.xml");
+    for (integrator, budget) in [("pt", ["--spp", "4"]), ("pssmlt", ["--time", "2.5"])] {
+        let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+        let address = listener.local_addr().unwrap().to_string();
+        let reader = std::thread::spawn(move || read_tev_packets(listener.accept().unwrap().0));
+        let out = dir.join(format!("{integrator}.exr"));
+        let result = hslt()
+            .args(["render", scene.to_str().unwrap(), "-D", "resx=100", "-D", "resy=70", "-q"])
+            .args(["--integrator", integrator, "--tev", &address, "-o", out.to_str().unwrap()])
+            .args(budget)
+            .output()
+            .unwrap();
+        assert!(result.status.success(), "{integrator}: {}", stderr(&result));
+        assert!(!stderr(&result).contains("warning"), "{}", stderr(&result));
+        let packets = reader.join().unwrap();
+        let creates: Vec<&Vec<u8>> = packets.iter().filter(|(t, _)| *t == CREATE).map(|(_, p)| p).collect();
+        assert_eq!(creates.len(), 1, "{integrator}: {} create packets", creates.len());
+        // grab_focus, the name (NUL-terminated), width, height, channel count.
+        let name_end = creates[0][1..].iter().position(|&b| b == 0).unwrap() + 1;
+        assert_eq!(&creates[0][1..name_end], format!("{integrator}.exr").as_bytes());
+        let dims = &creates[0][name_end + 1..name_end + 13];
+        let word = |k: usize| u32::from_le_bytes(dims[4 * k..4 * k + 4].try_into().unwrap());
+        assert_eq!((word(0), word(1), word(2)), (100, 70, 3));
+        let updates: Vec<&Vec<u8>> = packets.iter().filter(|(t, _)| *t == UPDATE).map(|(_, p)| p).collect();
+        // The final image comes in two bands (64 rows, then 6); a 2.5 s render also sends snapshots.
+        let min_updates = if integrator == "pt" { 2 } else { 4 };
+        assert!(updates.len() >= min_updates, "{integrator}: {} update packets", updates.len());
+        // The last band's pixels: 100 × 6 RGB floats after its header.
+        let last = updates.last().unwrap();
+        let floats = 100 * 6 * 3;
+        assert!(last.len() > floats * 4, "{integrator}: last update of {} bytes", last.len());
+        let data = &last[last.len() - floats * 4..];
+        let values: Vec<f32> = data.chunks(4).map(|b| f32::from_le_bytes(b.try_into().unwrap())).collect();
+        assert!(values.iter().all(|v| v.is_finite() && *v >= 0.0), "{integrator}: {values:?}");
+        assert!(values.iter().any(|&v| v > 0.0), "{integrator}: a black band");
+    }
+    // Nothing listening: one warning, and the render goes on.
+    let free = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().to_string();
+    let out = dir.join("alone.exr");
+    let result = hslt()
+        .args(["render", scene.to_str().unwrap(), "-D", "resx=8", "-D", "resy=8", "--spp", "1", "-q"])
+        .args(["--tev", &free, "-o", out.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(result.status.success(), "{}", stderr(&result));
+    assert_eq!(stderr(&result).matches("warning: --tev: no tev at").count(), 1, "{}", stderr(&result));
+    assert!(out.is_file());
+    let _ = std::fs::remove_dir_all(&dir);
+}

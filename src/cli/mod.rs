@@ -13,6 +13,7 @@ mod reference;
 mod render;
 mod stability;
 pub mod stats_json;
+mod tev;
 
 pub use bench::{BenchArgs, BenchCommand, BenchHsltArgs, BenchIntegratorsArgs, BenchRaysArgs};
 pub use compare::CompareArgs;

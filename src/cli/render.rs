@@ -2,6 +2,7 @@
 //! with progress, time budget and Ctrl-C, and writes every output atomically with the seed, integrator
 //! and sample count in its metadata.
 
+use super::tev::{TevStream, TEV_DEFAULT_ADDRESS, TEV_INTERVAL};
 use super::{
     check_output_paths, install_ctrlc_handler, load, parse_accel, parse_hslt_direction, thread_pool,
     MemoryArgs, SceneArgs, CANCEL,
@@ -13,10 +14,12 @@ use crate::metropolis::MutationKind;
 use crate::path::MisHeuristic;
 use crate::registry::{self, IntegratorKind};
 use crate::render::{DepthLimits, RenderOptions, RenderStats};
+use crate::render::{Snapshot, SnapshotHook};
 use crate::scene::Scene;
 use anyhow::{anyhow, bail, Context};
 use clap::Args;
 use std::path::PathBuf;
+use std::sync::Arc;
 use std::time::Duration;
 
 #[derive(Args, Debug)]
@@ -117,6 +120,11 @@ pub struct RenderArgs {
     /// PNG and other outputs stay beauty only.
     #[arg(long, value_name = "LIST")]
     pub aov: Option<String>,
+    /// Show the image while it renders in a running tev (https://github.com/Tom94/tev), at
+    /// HOST:PORT [default: 127.0.0.1:14158, tev's own]; refreshed every second, for every integrator
+    /// (the Metropolis ones show their normalised estimate so far).
+    #[arg(long, value_name = "HOST:PORT", num_args = 0..=1, default_missing_value = TEV_DEFAULT_ADDRESS)]
+    pub tev: Option<String>,
     /// Samples per pixel of the --aov pass.
     #[arg(long, value_name = "N", default_value_t = 16)]
     pub aov_spp: u32,
@@ -225,7 +233,7 @@ pub(super) fn run_render(args: RenderArgs) -> anyhow::Result<i32> {
     settings.mutation.specular_threshold = args.specular_threshold;
     settings.mutation.halfvector.direction = parse_hslt_direction(&args.hslt_direction)?;
     let integrator = registry::make_with(kind, &settings);
-    let options = RenderOptions {
+    let mut options = RenderOptions {
         spp: args.spp.or(if args.time.is_some() { None } else { Some(scene.spp) }),
         time_limit: args.time.map(Duration::from_secs_f64),
         seed: args.seed,
@@ -235,10 +243,42 @@ pub(super) fn run_render(args: RenderArgs) -> anyhow::Result<i32> {
     install_ctrlc_handler("finishing the current tiles and writing the image so far");
     let pool = thread_pool(args.threads)?;
     let threads = pool.current_num_threads();
-    let (output, over_memory) =
-        args.memory.watch(|| pool.install(|| integrator.render(&scene, &options, &CANCEL)));
+    let mut tev = args.tev.as_deref().map(|address| {
+        let name = args.output[0].file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+        TevStream::connect(address, &name, scene.film.width, scene.film.height)
+    });
+    let (output, over_memory) = std::thread::scope(|scope| {
+        // The live view: snapshots every TEV_INTERVAL go through a channel of one to a thread that
+        // sends them, so the render never waits on the network (a frame tev is still reading is
+        // skipped instead).
+        let viewer = tev.take().filter(TevStream::is_connected).map(|mut stream| {
+            let (send, receive) = std::sync::mpsc::sync_channel::<ImageBuf>(1);
+            let times = (1..=100_000u32)
+                .map(|k| TEV_INTERVAL * k)
+                .take_while(|t| options.time_limit.is_none_or(|limit| *t < limit))
+                .collect();
+            let sink = move |s: &Snapshot| {
+                let _ = send.try_send(s.image.clone());
+            };
+            options.snapshots = Some(SnapshotHook { times, sink: Arc::new(sink) });
+            scope.spawn(move || {
+                for image in receive {
+                    stream.send(&image);
+                }
+                stream
+            })
+        });
+        let result = args.memory.watch(|| pool.install(|| integrator.render(&scene, &options, &CANCEL)));
+        // Dropping the hook drops the sender, which ends the viewer's loop.
+        options.snapshots = None;
+        tev = viewer.and_then(|v| v.join().ok());
+        result
+    });
     let stats = output.stats;
     let image = output.film.to_image();
+    if let Some(stream) = tev.as_mut() {
+        stream.send(&image);
+    }
     let mut meta = metadata(&scene, kind.name(), &options, limits, threads, &stats);
     if args.min_depth > 1 {
         meta.push(("hslt.min_depth".into(), args.min_depth.to_string()));
