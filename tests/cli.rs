@@ -292,8 +292,11 @@ fn stats_json_holds_the_render_statistics_of_every_integrator() {
             assert!(mlt["mutations"].as_u64().unwrap() > 0, "{doc}");
             let acceptance = mlt["acceptance"].as_f64().unwrap();
             assert!((0.0..=1.0).contains(&acceptance));
+            assert!(mlt["chains_stuck"].is_u64() && mlt["longest_rejection_streak"].is_u64(), "{doc}");
+            assert!((0.0..=1.0).contains(&mlt["stuck_share"].as_f64().unwrap()), "{doc}");
             if integrator == "hslt+mlt" {
                 assert!(mlt["lens"]["proposed"].as_u64().unwrap() > 0, "{doc}");
+                assert!(mlt["lens"]["microseconds_per_proposal"].as_f64().unwrap() > 0.0, "{doc}");
                 assert!(mlt["hslt"]["proposed"].is_u64(), "{doc}");
             }
         }

@@ -436,3 +436,58 @@ fn relative_mse_of_images() {
         );
     }
 }
+
+/// A mutation that never applies: the chain stays where it is.
+struct Stay;
+
+impl Mutation<Point, PssSampler> for Stay {
+    fn name(&self) -> &'static str {
+        "stay"
+    }
+    fn propose(
+        &mut self,
+        _: &Point,
+        _: &mut PssSampler,
+        _: &mut Sampler,
+        _: &mut MutationStats,
+    ) -> Result<Proposal<Point>, Failure> {
+        Err(Failure::Failed("stays"))
+    }
+}
+
+/// Rejection streaks and timed proposals (the render summary's "chains stuck" and "µs each"): a
+/// chain that cannot move is stuck from its STUCK_STREAK-th step on; a mixing chain never is; every
+/// TIME_EVERY-th proposal of each mutation is timed.
+#[test]
+fn streaks_count_stuck_chains_and_proposals_are_timed() {
+    use hslt::metropolis::chain::{STUCK_STREAK, TIME_EVERY};
+    let steps = 3 * STUCK_STREAK;
+    let mut pss = PssSampler::new(Sampler::new(1, 0, 100), 1);
+    let start = Point { u: 0.9 };
+    let stay = vec![WeightedMutation { mutation: Box::new(Stay) as Box<dyn Mutation<_, _>>, weight: 1.0 }];
+    let mut stuck = Chain::new(start.clone(), stay, TargetFunction::Luminance, Sampler::new(1, 0, 2));
+    for _ in 0..steps {
+        stuck.step(&mut pss, &mut |_: &Point, _| {});
+    }
+    assert_eq!(stuck.streaks().longest, steps);
+    // The whole run counts once it reaches STUCK_STREAK, its first mutations too.
+    assert_eq!(stuck.streaks().stuck_mutations, steps);
+    let s = &stuck.stats()[0];
+    assert_eq!(s.timed, steps.div_ceil(TIME_EVERY));
+    assert!(s.microseconds_per_proposal().unwrap() > 0.0);
+
+    let moves = vec![
+        WeightedMutation {
+            mutation: Box::new(ToyStep { large: true }) as Box<dyn Mutation<_, _>>,
+            weight: 0.3,
+        },
+        WeightedMutation { mutation: Box::new(ToyStep { large: false }), weight: 0.7 },
+    ];
+    let mut mixing = Chain::new(start, moves, TargetFunction::Luminance, Sampler::new(1, 1, 2));
+    for _ in 0..steps {
+        mixing.step(&mut pss, &mut |_: &Point, _| {});
+    }
+    let streaks = mixing.streaks();
+    assert!(streaks.longest > 0 && streaks.longest < 100, "{streaks:?}");
+    assert_eq!(streaks.stuck_mutations, 0);
+}

@@ -418,13 +418,28 @@ fn print_metropolis_summary(meta: &Metadata) {
     }
     if let (Some(m), Some(a)) = (get("hslt.mlt.mutations"), get("hslt.mlt.acceptance")) {
         eprintln!("{m} mutations, acceptance {a}");
+        if let (Some(stuck), Some(chains), Some(longest), Some(share)) = (
+            get("hslt.mlt.chains_stuck"),
+            get("hslt.mlt.chains"),
+            get("hslt.mlt.longest_rejection_streak"),
+            get("hslt.mlt.stuck_share"),
+        ) {
+            eprintln!(
+                "chains stuck ({} or more rejections in a row): {stuck} of {chains}; longest run {longest}; \
+                 share of mutations in such runs {share}",
+                crate::metropolis::chain::STUCK_STREAK
+            );
+        }
         for (k, v) in meta {
             let Some(name) = k.strip_prefix("hslt.mlt.").and_then(|r| r.strip_suffix(".acceptance")) else {
                 continue;
             };
             let field = |what: &str| get(&format!("hslt.mlt.{name}.{what}")).unwrap_or("0").to_string();
+            let cost = get(&format!("hslt.mlt.{name}.microseconds_per_proposal"))
+                .map(|us| format!(", {us} µs each"))
+                .unwrap_or_default();
             let mut line = format!(
-                "  {name}: {} proposed, acceptance {v}, {} zero-contribution, {} not applicable",
+                "  {name}: {} proposed, acceptance {v}{cost}, {} zero-contribution, {} not applicable",
                 field("proposed"),
                 field("rejected_zero"),
                 field("not_applicable")

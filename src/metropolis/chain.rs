@@ -124,6 +124,28 @@ pub struct MutationStats {
     pub failed: BTreeMap<&'static str, u64>,
     /// Mutation-specific sums (divide by a count for a mean), e.g. Newton iterations.
     pub sums: BTreeMap<&'static str, f64>,
+    /// Proposals whose wall time was measured (every `TIME_EVERY`-th), and that time in seconds:
+    /// the cost side of acceptance × cost when choosing a mixture.
+    pub timed: u64,
+    pub timed_seconds: f64,
+}
+
+/// One proposal in this many (per mutation) is timed: two clock reads cost about 50 ns, a tenth of
+/// the cheapest proposal, so timing every one would bias the mixture's measured costs and slow it.
+pub const TIME_EVERY: u64 = 16;
+
+/// Consecutive rejections after which a chain counts as stuck: at an acceptance of even 10% the
+/// chance of 1000 rejections in a row is 10⁻⁴⁶, so such a streak means a state the mutations
+/// cannot leave (a rare path with a large contribution), whose image error the summary reports.
+pub const STUCK_STREAK: u64 = 1000;
+
+/// A chain's rejection streaks.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Streaks {
+    /// The longest run of consecutive rejections.
+    pub longest: u64,
+    /// Mutations spent in runs of at least `STUCK_STREAK` rejections (counted from the first).
+    pub stuck_mutations: u64,
 }
 
 impl MutationStats {
@@ -157,6 +179,13 @@ impl MutationStats {
         for (k, v) in &o.sums {
             *self.sums.entry(k).or_insert(0.0) += v;
         }
+        self.timed += o.timed;
+        self.timed_seconds += o.timed_seconds;
+    }
+
+    /// Mean wall time of a proposal (from the timed ones), in microseconds.
+    pub fn microseconds_per_proposal(&self) -> Option<f64> {
+        (self.timed > 0).then(|| self.timed_seconds / self.timed as f64 * 1e6)
     }
 }
 
@@ -179,6 +208,9 @@ pub struct Chain<S, C> {
     /// The states the target is defined on; outside it the target is zero (direct-lighting paths when
     /// direct illumination is rendered separately). Everything by default.
     support: Option<Support<S>>,
+    /// Consecutive rejections up to now, and the record so far.
+    streak: u64,
+    streaks: Streaks,
 }
 
 /// A predicate on states: `true` where the chain's target may be positive.
@@ -205,7 +237,18 @@ impl<S: ChainState, C> Chain<S, C> {
             .iter()
             .map(|m| MutationStats { name: m.mutation.name(), ..Default::default() })
             .collect();
-        Chain { current: start, current_target, mutations, total_weight, stats, rng, target, support: None }
+        Chain {
+            current: start,
+            current_target,
+            mutations,
+            total_weight,
+            stats,
+            rng,
+            target,
+            support: None,
+            streak: 0,
+            streaks: Streaks::default(),
+        }
     }
 
     /// Restricts the target to states for which `support` holds: proposals outside it are rejected
@@ -228,6 +271,10 @@ impl<S: ChainState, C> Chain<S, C> {
         &self.stats
     }
 
+    pub fn streaks(&self) -> Streaks {
+        self.streaks
+    }
+
     fn pick_mutation(&mut self) -> usize {
         let mut u = self.rng.next_f64() * self.total_weight;
         for (i, m) in self.mutations.iter().enumerate() {
@@ -246,6 +293,29 @@ impl<S: ChainState, C> Chain<S, C> {
     /// weights that already include 1/f, so the recorder only multiplies by the normalisation b.
     pub fn step(&mut self, ctx: &mut C, record: &mut impl FnMut(&S, f64)) {
         let which = self.pick_mutation();
+        // Timing depends on the proposal count only, never on the random stream.
+        let start = (self.stats[which].proposed % TIME_EVERY == 0).then(std::time::Instant::now);
+        let accepted_before = self.stats[which].accepted;
+        self.step_with(which, ctx, record);
+        let stats = &mut self.stats[which];
+        if let Some(start) = start {
+            stats.timed += 1;
+            stats.timed_seconds += start.elapsed().as_secs_f64();
+        }
+        if stats.accepted > accepted_before {
+            self.streak = 0;
+        } else {
+            self.streak += 1;
+            self.streaks.longest = self.streaks.longest.max(self.streak);
+            if self.streak == STUCK_STREAK {
+                self.streaks.stuck_mutations += STUCK_STREAK;
+            } else if self.streak > STUCK_STREAK {
+                self.streaks.stuck_mutations += 1;
+            }
+        }
+    }
+
+    fn step_with(&mut self, which: usize, ctx: &mut C, record: &mut impl FnMut(&S, f64)) {
         let stats = &mut self.stats[which];
         stats.proposed += 1;
         let mutation = &mut self.mutations[which].mutation;

@@ -3,7 +3,7 @@
 //! are then added to one film in chain order, so the image depends on the seed alone, never on
 //! scheduling or thread count. Rounds end at snapshot times, the time limit and cancellation.
 
-use super::chain::{Chain, ChainState, MutationStats};
+use super::chain::{Chain, ChainState, MutationStats, Streaks, STUCK_STREAK};
 use crate::render::{Film, RenderOptions, Snapshot, SnapshotClock, Splat};
 use rayon::prelude::*;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -44,6 +44,7 @@ pub trait RunningChain: Send {
     ) -> u64;
     fn stats(&self) -> &[MutationStats];
     fn rays(&self) -> u64;
+    fn streaks(&self) -> Streaks;
 }
 
 /// A `Chain` with its context.
@@ -81,6 +82,10 @@ impl<S: FilmState + Send, C: CountsRays + Send> RunningChain for ChainRunner<S, 
     fn rays(&self) -> u64 {
         self.ctx.rays()
     }
+
+    fn streaks(&self) -> Streaks {
+        self.chain.streaks()
+    }
 }
 
 /// What the chains did.
@@ -92,6 +97,8 @@ pub struct DriveOutcome {
     pub stats: Vec<MutationStats>,
     pub rays: u64,
     pub interrupted: bool,
+    /// Each chain's rejection streaks.
+    pub streaks: Vec<Streaks>,
 }
 
 /// Work per chain: `total` mutations split evenly, or unbounded (`u64::MAX`) when only a time limit
@@ -189,7 +196,8 @@ pub fn drive(
     let stats = merge_stats(chains.iter().map(|c| c.stats()));
     let rays = chains.iter().map(|c| c.rays()).sum();
     film.splat_scale = if mutations > 0 { normalization(&stats) * pixels / mutations as f64 } else { 0.0 };
-    DriveOutcome { film, mutations, stats, rays, interrupted: cancel.load(Ordering::Relaxed) }
+    let streaks = chains.iter().map(|c| c.streaks()).collect();
+    DriveOutcome { film, mutations, stats, rays, interrupted: cancel.load(Ordering::Relaxed), streaks }
 }
 
 /// Metadata keys `hslt.mlt.<mutation>.<what>` for each mutation: counts, acceptance, failure reasons
@@ -213,6 +221,9 @@ pub fn mutation_metadata(stats: &[MutationStats]) -> Vec<(String, String)> {
         for (reason, n) in &s.failed {
             out.push((key(&format!("failed.{reason}")), n.to_string()));
         }
+        if let Some(us) = s.microseconds_per_proposal() {
+            out.push((key("microseconds_per_proposal"), format!("{us:.3}")));
+        }
         for (what, sum) in &s.sums {
             let applied = s.proposed - s.not_applicable;
             let mean = if applied > 0 { sum / applied as f64 } else { 0.0 };
@@ -220,6 +231,20 @@ pub fn mutation_metadata(stats: &[MutationStats]) -> Vec<(String, String)> {
         }
     }
     out
+}
+
+/// Metadata on stuck chains: how many had a run of `STUCK_STREAK` or more rejections, the longest
+/// run, and the share of all mutations spent in such runs (where one state keeps collecting weight).
+pub fn streak_metadata(streaks: &[Streaks], mutations: u64) -> Vec<(String, String)> {
+    let stuck = streaks.iter().filter(|s| s.longest >= STUCK_STREAK).count();
+    let longest = streaks.iter().map(|s| s.longest).max().unwrap_or(0);
+    let stuck_mutations: u64 = streaks.iter().map(|s| s.stuck_mutations).sum();
+    let share = if mutations > 0 { stuck_mutations as f64 / mutations as f64 } else { 0.0 };
+    vec![
+        ("hslt.mlt.chains_stuck".into(), stuck.to_string()),
+        ("hslt.mlt.longest_rejection_streak".into(), longest.to_string()),
+        ("hslt.mlt.stuck_share".into(), format!("{share:.4}")),
+    ]
 }
 
 /// Seconds between two instants, for metadata.

@@ -346,6 +346,7 @@ impl Integrator for PathMlt {
         metadata.push(("hslt.mlt.chains".into(), chains.len().to_string()));
         metadata.push(("hslt.mlt.mutations".into(), outcome.mutations.to_string()));
         metadata.extend(driver::mutation_metadata(&mutation_stats));
+        metadata.extend(driver::streak_metadata(&outcome.streaks, outcome.mutations));
         metadata.push((
             "hslt.mlt.seconds_seeding".into(),
             format!("{:.3}", driver::seconds(start_time, chains_start)),

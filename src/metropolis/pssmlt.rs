@@ -355,6 +355,7 @@ impl Integrator for Pssmlt {
         metadata
             .push(("hslt.mlt.normalization_final".into(), format!("{:.6e}", normalization(&outcome.stats))));
         film = outcome.film;
+        metadata.extend(driver::streak_metadata(&outcome.streaks, outcome.mutations));
         let mutation_stats = outcome.stats;
         let mutations_done = outcome.mutations;
         stats.rays += outcome.rays;
