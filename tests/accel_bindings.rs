@@ -96,3 +96,30 @@ fn stamp_round_trips_and_missing_stamp_is_an_error() {
     let err = EmbreeConfig::from_stamp(&missing_key).unwrap_err();
     assert!(err.contains("RTC_MIN_WIDTH"), "{err}");
 }
+
+/// The Embree 4 bindings (`--features embree4`) are stamped like the Embree 3 ones, from Embree 4
+/// headers, and the stamp agrees with the constants bindgen emitted; the API names the Embree 4
+/// compatibility layer translates exist in them with their Embree 4 shapes.
+#[test]
+fn embree4_bindings_are_stamped_and_have_the_embree4_api() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(build_embree::VENDORED_BINDINGS_4);
+    let text = std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let stamp = EmbreeConfig::from_stamp(&text).unwrap();
+    assert_eq!(stamp.version_major, 4);
+    assert!(text.contains(&format!("pub const RTC_VERSION: u32 = {};", stamp.version)));
+    assert!(text.contains(&format!(
+        "pub const RTC_MAX_INSTANCE_LEVEL_COUNT: u32 = {};",
+        stamp.max_instance_level_count
+    )));
+    for item in
+        ["pub struct RTCIntersectArguments", "pub struct RTCOccludedArguments", "RTC_RAY_QUERY_FLAG_COHERENT"]
+    {
+        assert!(text.contains(item), "{item} missing");
+    }
+    // Embree 4 dropped the context and the stream calls.
+    assert!(!text.contains("pub struct RTCIntersectContext") && !text.contains("rtcIntersect1M"));
+    let compact: String = text.split_whitespace().collect::<Vec<_>>().join(" ");
+    assert!(compact.contains(
+        "pub fn rtcIntersect1(scene: RTCScene, rayhit: *mut RTCRayHit, args: *mut RTCIntersectArguments)"
+    ));
+}
