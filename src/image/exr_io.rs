@@ -216,7 +216,7 @@ fn pick_channels(names: &[String]) -> Option<Vec<usize>> {
             }
         }
     }
-    for prefix in prefixes {
+    for &prefix in &prefixes {
         let full = |c: &str| {
             if prefix.is_empty() {
                 c.to_string()
@@ -235,11 +235,13 @@ fn pick_channels(names: &[String]) -> Option<Vec<usize>> {
         if let Some(y) = find(&full("Y")) {
             return Some([Some(y), alpha].into_iter().flatten().collect());
         }
-        if let Some(z) = find(&full("Z")) {
-            return Some(vec![z]);
-        }
     }
-    None
+    // A depth layer alone (`Z`), only when no prefix holds colour: a bare Z beside `diffuse.R/G/B`
+    // is that image's depth, not the image.
+    prefixes
+        .iter()
+        .find_map(|prefix| find(&if prefix.is_empty() { "Z".into() } else { format!("{prefix}.Z") }))
+        .map(|z| vec![z])
 }
 
 fn sample_as_f32(samples: &FlatSamples, index: usize) -> f32 {
