@@ -282,6 +282,11 @@ fn stats_json_holds_the_render_statistics_of_every_integrator() {
         let cpu = doc["cpu_seconds"].as_f64().unwrap();
         assert!(wall > 0.0 && cpu > 0.0, "{doc}");
         assert!(doc["rays"].as_u64().unwrap() > 0 && doc["samples"].as_u64().unwrap() > 0, "{doc}");
+        // Rays by kind: every integrator here traces shadow rays to the box's area light.
+        let (shadow, closest) =
+            (doc["shadow_rays"].as_u64().unwrap(), doc["closest_hit_rays"].as_u64().unwrap());
+        assert!(shadow > 0 && closest > 0, "{doc}");
+        assert_eq!(shadow + closest, doc["rays"].as_u64().unwrap());
         assert!(doc["samples_per_second"].as_f64().unwrap() > 0.0);
         assert!(doc["peak_memory_bytes"].as_u64().unwrap() > 1 << 20);
         if integrator == "pt" || integrator == "bdpt" {

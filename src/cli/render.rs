@@ -378,6 +378,8 @@ fn process_metadata(scene: &Scene, stats: &RenderStats) -> Metadata {
         ("hslt.width".into(), scene.film.width.to_string()),
         ("hslt.height".into(), scene.film.height.to_string()),
         ("hslt.rays".into(), stats.rays.to_string()),
+        ("hslt.shadow_rays".into(), stats.shadow_rays.to_string()),
+        ("hslt.closest_hit_rays".into(), stats.rays.saturating_sub(stats.shadow_rays).to_string()),
         ("hslt.samples_per_second".into(), format!("{:.1}", stats.samples as f64 / secs)),
     ];
     if let Some(cpu) = crate::resources::cpu_seconds() {

@@ -230,6 +230,7 @@ impl Bdpt {
                 return None;
             }
             counters.rays += 1;
+            counters.shadow_rays += 1;
             if !visible(scene, z, y) {
                 return None;
             }
@@ -249,6 +250,7 @@ impl Bdpt {
                 return None;
             }
             counters.rays += 1;
+            counters.shadow_rays += 1;
             if !visible(scene, z, &y) {
                 return None;
             }
@@ -268,6 +270,7 @@ impl Bdpt {
                 return None;
             }
             counters.rays += 1;
+            counters.shadow_rays += 1;
             if !visible(scene, z, y) {
                 return None;
             }

@@ -69,6 +69,7 @@ impl PathTracer {
             return Spectrum::ZERO;
         }
         counters.rays += 1;
+        counters.shadow_rays += 1;
         let blocked = if ls.dist.is_finite() {
             scene.occluded_between(si.p, si.offset(), ls.p, Vec3::ZERO)
         } else {

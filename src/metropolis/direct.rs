@@ -153,6 +153,7 @@ pub fn render_into(
     let (lit_film, lit_stats) = render::render(scene, &lit, &pass_options(seed, 1.0 - seen_share), cancel);
     let mut image = lit_film.to_image();
     stats.rays += lit_stats.rays;
+    stats.shadow_rays += lit_stats.shadow_rays;
     stats.invalid_samples += lit_stats.invalid_samples;
     let mut elapsed = lit_stats.elapsed;
     metadata.push(("hslt.mlt.direct_samples".into(), lit_stats.min_spp.to_string()));
@@ -170,6 +171,7 @@ pub fn render_into(
             *a += *b;
         }
         stats.rays += seen_stats.rays;
+        stats.shadow_rays += seen_stats.shadow_rays;
         stats.invalid_samples += seen_stats.invalid_samples;
         elapsed += seen_stats.elapsed;
         metadata.push(("hslt.mlt.direct_seen_samples".into(), seen_stats.min_spp.to_string()));

@@ -28,6 +28,8 @@ pub trait FilmState: ChainState {
 /// A chain context that counts the rays it casts.
 pub trait CountsRays {
     fn rays(&self) -> u64;
+    /// Of `rays`, the shadow rays.
+    fn shadow_rays(&self) -> u64;
 }
 
 /// A chain with everything it needs to advance, behind one object so different state spaces share
@@ -44,6 +46,7 @@ pub trait RunningChain: Send {
     ) -> u64;
     fn stats(&self) -> &[MutationStats];
     fn rays(&self) -> u64;
+    fn shadow_rays(&self) -> u64;
     fn streaks(&self) -> Streaks;
 }
 
@@ -83,6 +86,10 @@ impl<S: FilmState + Send, C: CountsRays + Send> RunningChain for ChainRunner<S, 
         self.ctx.rays()
     }
 
+    fn shadow_rays(&self) -> u64 {
+        self.ctx.shadow_rays()
+    }
+
     fn streaks(&self) -> Streaks {
         self.chain.streaks()
     }
@@ -96,6 +103,7 @@ pub struct DriveOutcome {
     pub mutations: u64,
     pub stats: Vec<MutationStats>,
     pub rays: u64,
+    pub shadow_rays: u64,
     pub interrupted: bool,
     /// Each chain's rejection streaks.
     pub streaks: Vec<Streaks>,
@@ -197,7 +205,9 @@ pub fn drive(
     let rays = chains.iter().map(|c| c.rays()).sum();
     film.splat_scale = if mutations > 0 { normalization(&stats) * pixels / mutations as f64 } else { 0.0 };
     let streaks = chains.iter().map(|c| c.streaks()).collect();
-    DriveOutcome { film, mutations, stats, rays, interrupted: cancel.load(Ordering::Relaxed), streaks }
+    let shadow_rays = chains.iter().map(|c| c.shadow_rays()).sum();
+    let interrupted = cancel.load(Ordering::Relaxed);
+    DriveOutcome { film, mutations, stats, rays, shadow_rays, interrupted, streaks }
 }
 
 /// Metadata keys `hslt.mlt.<mutation>.<what>` for each mutation: counts, acceptance, failure reasons

@@ -11,7 +11,7 @@ use super::mutations::{self, MutationKind, MutationSettings};
 use super::path_state::{PathContext, PathState};
 use super::pssmlt::{acceptance_extra, sample_cdf, PssContext, Pssmlt};
 use crate::integrators::Bdpt;
-use crate::render::{Film, Integrator, RenderOptions, RenderOutput, RenderStats};
+use crate::render::{Film, Integrator, RenderOptions, RenderOutput, RenderStats, SampleCounters};
 use crate::sampling::Sampler;
 use crate::scene::Scene;
 use crate::spectrum::luminance;
@@ -97,24 +97,24 @@ pub struct PathSeeds {
     /// count s (`by_strategy[k][s]`): which lengths carry the light and which of BDPT's strategies make
     /// them well, which the large step proposes from (`largestep::StrategyPmf`).
     pub by_strategy: Vec<Vec<f64>>,
-    pub rays: u64,
+    pub rays: SampleCounters,
     pub invalid: u64,
 }
 
 impl PathSeeds {
     pub fn run(scene: &Scene, bdpt: &Bdpt, seed: u64, n: usize, cancel: &AtomicBool) -> PathSeeds {
-        type Chunk = (Vec<(Candidate, f64, (usize, usize))>, u64, u64, f64);
+        type Chunk = (Vec<(Candidate, f64, (usize, usize))>, SampleCounters, u64, f64);
         let chunks: Vec<Chunk> = (0..n.div_ceil(SEED_CHUNK))
             .into_par_iter()
             .map(|chunk| {
-                let mut out: Chunk = (Vec::new(), 0, 0, 0.0);
+                let mut out: Chunk = (Vec::new(), SampleCounters::default(), 0, 0.0);
                 if cancel.load(Ordering::Relaxed) {
                     return out;
                 }
                 for i in chunk * SEED_CHUNK..((chunk + 1) * SEED_CHUNK).min(n) {
                     let mut ctx = PssContext::new(scene, bdpt, Pssmlt::seed_pss(seed, i));
                     let _ = ctx.evaluate();
-                    out.1 += ctx.counters.rays;
+                    out.1 += ctx.counters;
                     for (j, c) in ctx.contributions().iter().enumerate() {
                         let y = luminance(c.value) as f64;
                         if !(y.is_finite() && c.value.min_element() >= 0.0) {
@@ -140,7 +140,7 @@ impl PathSeeds {
             samples: n,
             b: 0.0,
             by_strategy: Vec::new(),
-            rays: 0,
+            rays: SampleCounters::default(),
             invalid: 0,
         };
         let mut sum = 0.0;
@@ -254,7 +254,8 @@ impl Integrator for PathMlt {
         let seed = options.seed ^ (options.first_sample as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15);
         let n_seed = self.settings.seed_paths.unwrap_or_else(|| default_seed_paths(pixels)).max(1);
         let seeds = PathSeeds::run(scene, &self.bdpt, seed, n_seed, cancel);
-        stats.rays += seeds.rays;
+        stats.rays += seeds.rays.rays;
+        stats.shadow_rays += seeds.rays.shadow_rays;
         stats.invalid_samples += seeds.invalid;
         let b = seeds.b;
         metadata.push(("hslt.mlt.seed_paths".into(), n_seed.to_string()));
@@ -337,6 +338,7 @@ impl Integrator for PathMlt {
             .push(("hslt.mlt.normalization_final".into(), format!("{:.6e}", normalization(&outcome.stats))));
         let mutation_stats: Vec<MutationStats> = outcome.stats;
         stats.rays += outcome.rays;
+        stats.shadow_rays += outcome.shadow_rays;
         stats.interrupted |= outcome.interrupted;
         stats.samples = outcome.mutations;
         stats.min_spp = (outcome.mutations / pixels as u64).min(u32::MAX as u64) as u32;

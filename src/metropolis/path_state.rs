@@ -114,4 +114,8 @@ impl CountsRays for PathContext<'_> {
     fn rays(&self) -> u64 {
         self.counters.rays
     }
+
+    fn shadow_rays(&self) -> u64 {
+        self.counters.shadow_rays
+    }
 }

@@ -251,6 +251,10 @@ impl CountsRays for PssContext<'_> {
     fn rays(&self) -> u64 {
         self.counters.rays
     }
+
+    fn shadow_rays(&self) -> u64 {
+        self.counters.shadow_rays
+    }
 }
 
 impl Integrator for Pssmlt {
@@ -273,18 +277,19 @@ impl Integrator for Pssmlt {
         let seed = options.seed ^ (options.first_sample as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15);
         // Seeding pass: independent BDPT samples estimate b = E[f] and give the chains their start.
         let n_seed = self.settings.seed_paths_for(pixels);
-        let chunks: Vec<(Vec<f64>, u64, u64)> = (0..n_seed.div_ceil(SEED_CHUNK))
+        let chunks: Vec<(Vec<f64>, u64, SampleCounters)> = (0..n_seed.div_ceil(SEED_CHUNK))
             .into_par_iter()
             .map(|chunk| {
                 let range = chunk * SEED_CHUNK..((chunk + 1) * SEED_CHUNK).min(n_seed);
-                let (mut targets, mut invalid, mut rays) = (Vec::with_capacity(range.len()), 0, 0);
+                let (mut targets, mut invalid, mut rays) =
+                    (Vec::with_capacity(range.len()), 0, SampleCounters::default());
                 if cancel.load(Ordering::Relaxed) {
-                    return (vec![0.0; range.len()], 0, 0);
+                    return (vec![0.0; range.len()], 0, rays);
                 }
                 for i in range {
                     let mut ctx = PssContext::new(scene, &self.bdpt, Self::seed_pss(seed, i));
                     let sample = ctx.evaluate();
-                    rays += ctx.counters.rays;
+                    rays += ctx.counters;
                     if sample.is_valid() {
                         targets.push(target.of(&sample));
                     } else {
@@ -299,7 +304,8 @@ impl Integrator for Pssmlt {
         let mut sum = 0.0f64;
         for (targets, invalid, rays) in &chunks {
             stats.invalid_samples += invalid;
-            stats.rays += rays;
+            stats.rays += rays.rays;
+            stats.shadow_rays += rays.shadow_rays;
             for &t in targets {
                 sum += t;
                 cdf.push(sum);
@@ -359,6 +365,7 @@ impl Integrator for Pssmlt {
         let mutation_stats = outcome.stats;
         let mutations_done = outcome.mutations;
         stats.rays += outcome.rays;
+        stats.shadow_rays += outcome.shadow_rays;
         stats.interrupted |= outcome.interrupted;
         if cancel.load(Ordering::Relaxed) {
             stats.interrupted = true;

@@ -14,11 +14,14 @@ use std::sync::atomic::AtomicBool;
 pub struct SampleCounters {
     /// Rays cast (closest-hit and shadow).
     pub rays: u64,
+    /// Of those, shadow rays (visibility between two points).
+    pub shadow_rays: u64,
 }
 
 impl std::ops::AddAssign for SampleCounters {
     fn add_assign(&mut self, o: SampleCounters) {
         self.rays += o.rays;
+        self.shadow_rays += o.shadow_rays;
     }
 }
 

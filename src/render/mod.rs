@@ -120,6 +120,8 @@ pub struct RenderStats {
     /// Samples whose estimate was NaN or infinite; they are dropped, never averaged in.
     pub invalid_samples: u64,
     pub rays: u64,
+    /// Of `rays`, the shadow rays (the rest are closest-hit queries).
+    pub shadow_rays: u64,
     pub elapsed: Duration,
     /// Complete passes over the image.
     pub passes: u32,
@@ -155,6 +157,7 @@ pub fn render(
     let mut stats = RenderStats::default();
     let invalid = AtomicU64::new(0);
     let rays = AtomicU64::new(0);
+    let shadow_rays = AtomicU64::new(0);
     let mut done_spp: u32 = 0;
     let mut pass_size: u32 = 1;
     let mut snapshot_clock = SnapshotClock::new(options);
@@ -188,6 +191,7 @@ pub fn render(
                 let r = render_tile(scene, integrator, options.seed, tile, first_sample, pass_size, width);
                 invalid.fetch_add(r.invalid, Ordering::Relaxed);
                 rays.fetch_add(r.counters.rays, Ordering::Relaxed);
+                shadow_rays.fetch_add(r.counters.shadow_rays, Ordering::Relaxed);
                 if let Some(pb) = &progress {
                     if target.is_some() {
                         pb.inc((tile.w * tile.h) as u64 * pass_size as u64);
@@ -260,6 +264,7 @@ pub fn render(
     film.splat_scale = if done_spp > 0 { 1.0 / done_spp as f64 } else { 0.0 };
     stats.invalid_samples = invalid.load(Ordering::Relaxed);
     stats.rays = rays.load(Ordering::Relaxed);
+    stats.shadow_rays = shadow_rays.load(Ordering::Relaxed);
     stats.elapsed = start.elapsed();
     (film, stats)
 }

@@ -427,6 +427,7 @@ fn grow_split(
         return Err(Failure::Failed("not_connectible"));
     }
     ctx.counters.rays += 1;
+    ctx.counters.shadow_rays += 1;
     if !visible(scene, eye_end, light_end) {
         return Err(Failure::Failed("occluded"));
     }

@@ -185,6 +185,7 @@ impl Mutation<PathState, PathContext<'_>> for ManifoldPerturbation {
 
         if c == b + 1 {
             ctx.counters.rays += 1;
+            ctx.counters.shadow_rays += 1;
             if !y[b].connectible() || !visible(scene, &y[b], &x[c]) {
                 return Err(Failure::Failed("occluded"));
             }

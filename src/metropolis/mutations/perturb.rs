@@ -262,6 +262,7 @@ pub fn trace_held_chain(
 /// True if nothing blocks the new edge between `a` and `b` (counted as one ray).
 pub fn connect_visible(ctx: &mut PathContext, a: &Vertex, b: &Vertex) -> bool {
     ctx.counters.rays += 1;
+    ctx.counters.shadow_rays += 1;
     visible(ctx.scene, a, b)
 }
 
