@@ -13,7 +13,15 @@ shift
 targets=("$@")
 if [ ${#targets[@]} -eq 0 ]; then targets=(scene_xml obj ply exr png); fi
 if ! cargo afl --version >/dev/null 2>&1; then
-    cargo install --locked cargo-afl || { echo "fuzz: cannot install cargo-afl here"; exit 2; }
+    cargo install --locked cargo-afl --version 0.18.2 || { echo "fuzz: cannot install cargo-afl here"; exit 2; }
+fi
+# cargo-afl builds AFL++ (afl-fuzz and its LLVM runtime) once per toolchain; a second build is refused
+# with "already built", which is what we want.
+if ! config=$(cargo afl config --build 2>&1); then
+    case "$config" in
+        *"already built"*) ;;
+        *) echo "$config" | tail -n 5; echo "fuzz: cannot build AFL++ here"; exit 2 ;;
+    esac
 fi
 # A harness that no longer builds is our bug (the fuzz workspace is outside `cargo test`): status 1.
 (cd fuzz && cargo afl build --release --locked) || { echo "fuzz: the fuzz harness does not build"; exit 1; }
