@@ -170,3 +170,25 @@ proptest! {
         mutated_inputs_never_panic(Input::Png, seed, &edits);
     }
 }
+
+/// The fuzz harness is its own workspace with its own Cargo.lock, which `.ci/run` builds with
+/// `--locked`: a dependency added to the renderer must be added to that lock too (run
+/// `cargo metadata --format-version 1 --manifest-path fuzz/Cargo.toml` once), or CI's fuzz step
+/// cannot build. This catches it in `cargo test`, without building the harness.
+#[test]
+fn the_fuzz_lock_file_has_every_dependency_of_the_renderer() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let manifest = std::fs::read_to_string(root.join("Cargo.toml")).unwrap();
+    let lock = std::fs::read_to_string(root.join("fuzz/Cargo.lock")).unwrap();
+    let section = manifest.split("\n[dependencies]\n").nth(1).unwrap().split("\n[").next().unwrap();
+    let names: Vec<&str> = section
+        .lines()
+        .filter(|l| !l.trim_start().starts_with('#'))
+        .filter_map(|l| l.split_once('=').map(|(name, _)| name.trim()))
+        .filter(|name| !name.is_empty())
+        .collect();
+    assert!(names.len() > 10, "parsed only {names:?} from [dependencies]");
+    let missing: Vec<&&str> =
+        names.iter().filter(|name| !lock.contains(&format!("name = \"{name}\"\n"))).collect();
+    assert!(missing.is_empty(), "fuzz/Cargo.lock lacks {missing:?}: update it (see this test's comment)");
+}
