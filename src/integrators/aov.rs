@@ -9,7 +9,7 @@
 //! | `normal` | X, Y, Z | world-space unit shading normal there; 0 where the ray leaves the scene |
 //! | `depth` | Z | distance along the camera ray to the first surface it meets (before any bounce); `MISS_DEPTH` where it meets none |
 
-use crate::bsdf::{BsdfContext, TransportMode};
+use crate::bsdf::{BsdfContext, BsdfSample, TransportMode};
 use crate::geometry::Ray;
 use crate::render::{PixelIntegrator, SampleOutput};
 use crate::sampling::Sampler;
@@ -104,9 +104,7 @@ impl AovPass {
                 for _ in 0..ALBEDO_SAMPLES {
                     let (u_lobe, u) = (sampler.next_1d(), sampler.next_2d());
                     if let Some(bs) = bsdf.sample(&ctx, wi_local, u_lobe, u) {
-                        // Radiance mode scales refraction by 1/η²; the albedo is the fraction of
-                        // energy scattered, so undo that for transmission.
-                        let w = if bs.eta != 1.0 { bs.weight * bs.eta * bs.eta } else { bs.weight };
+                        let w = scattered_energy(&bs);
                         if bs.pdf > 0.0 && w.is_finite() {
                             albedo += w;
                         }
@@ -118,7 +116,7 @@ impl AovPass {
             let Some(bs) = bsdf.sample(&ctx, wi_local, sampler.next_1d(), sampler.next_2d()) else {
                 return miss(depth);
             };
-            let w = if bs.eta != 1.0 { bs.weight * bs.eta * bs.eta } else { bs.weight };
+            let w = scattered_energy(&bs);
             if !(bs.pdf > 0.0 && w.is_finite()) {
                 return miss(depth);
             }
@@ -127,6 +125,12 @@ impl AovPass {
         }
         miss(depth)
     }
+}
+
+/// The fraction of energy a BSDF sample carries: its weight without the 1/η² that radiance mode puts on
+/// refraction (η is 1 for reflection, so reflected samples keep their weight).
+fn scattered_energy(bs: &BsdfSample) -> Spectrum {
+    bs.weight * (bs.eta * bs.eta)
 }
 
 impl PixelIntegrator for AovPass {
