@@ -32,7 +32,7 @@ fn snapshots_arrive_after_their_times_and_match_a_render_of_that_many_samples() 
     let options = RenderOptions {
         time_limit: Some(Duration::from_millis(600)),
         seed: 5,
-        snapshots: Some(SnapshotHook { times: times.clone(), sink: Arc::new(sink) }),
+        snapshots: Some(SnapshotHook::images(times.clone(), sink)),
         ..Default::default()
     };
     let output = integrator.render(&scene, &options, &AtomicBool::new(false));
@@ -104,7 +104,7 @@ fn metropolis_chains_take_snapshots_between_rounds() {
     let options = RenderOptions {
         time_limit: Some(Duration::from_millis(1500)),
         seed: 5,
-        snapshots: Some(SnapshotHook { times: times.clone(), sink: Arc::new(sink) }),
+        snapshots: Some(SnapshotHook::images(times.clone(), sink)),
         ..Default::default()
     };
     let output = integrator.render(&scene, &options, &AtomicBool::new(false));

@@ -156,7 +156,7 @@ pub fn run_compare(args: CompareArgs) -> anyhow::Result<i32> {
             time_limit: Some(total),
             seed: args.seed,
             progress: !args.quiet,
-            snapshots: Some(SnapshotHook { times: times[..times.len() - 1].to_vec(), sink: Arc::new(sink) }),
+            snapshots: Some(SnapshotHook::images(times[..times.len() - 1].to_vec(), sink)),
             ..Default::default()
         };
         let output = pool.install(|| integrator.render(&scene, &options, &CANCEL));

@@ -7,6 +7,7 @@ pub mod assets;
 mod bench;
 mod compare;
 pub mod error;
+mod farm;
 mod info;
 pub mod plot_halfvector;
 mod reference;
@@ -58,6 +59,9 @@ pub enum Command {
     Compare(compare::CompareArgs),
     /// Render a long, checkpointed reference image (EXR) that --resume continues.
     Reference(reference::ReferenceArgs),
+    /// Merge parts of one render (`hslt render --part K/N`) into one image: exactly the single render
+    /// for pixel integrators when all parts are there, and an unbiased image from any subset of them.
+    Merge(farm::MergeArgs),
     /// Error of finished images against a reference (one image, or the mean of two independent
     /// renders): relative MSE per pixel and on block means, the worst 1% of pixels' share of it, RMSE,
     /// MAE, with each image's integrator, seed and samples from its metadata, as a Markdown table.
@@ -110,11 +114,12 @@ fn parse_accel(name: &str) -> anyhow::Result<AccelKind> {
     }
 }
 
-/// Set by the Ctrl-C handler; the render loop finishes its current work and returns.
+/// Set by the Ctrl-C handler (and SIGTERM, SIGHUP); the render loop finishes its current work and returns.
 static CANCEL: AtomicBool = AtomicBool::new(false);
 
-/// A first Ctrl-C sets `CANCEL` (the command finishes its work in progress and writes what exists,
-/// as `message` tells the user); a second one means the user does not want to wait, and exits.
+/// A first Ctrl-C, SIGTERM or SIGHUP sets `CANCEL` (the command finishes its work in progress and
+/// writes what exists, as `message` tells the user; a farm's scheduler sends SIGTERM at its time
+/// limit); a second one means the user does not want to wait, and exits.
 fn install_ctrlc_handler(message: &'static str) {
     let _ = ctrlc::set_handler(move || {
         if CANCEL.swap(true, Ordering::SeqCst) {
@@ -196,6 +201,7 @@ pub fn run(cli: Cli) -> anyhow::Result<i32> {
         Command::GenerateAssets(args) => assets::run(args),
         Command::Compare(args) => compare::run_compare(args),
         Command::Reference(args) => reference::run_reference(args),
+        Command::Merge(args) => farm::run_merge(args),
         Command::Error(args) => error::run(args),
         Command::PlotHalfvector(args) => plot_halfvector::run(args),
         Command::Stability(args) => stability::run_stability(args),

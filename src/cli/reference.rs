@@ -13,7 +13,6 @@ use crate::scene::Scene;
 use anyhow::{bail, Context};
 use clap::Args;
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
 use std::time::Duration;
 
 /// Seed `reference` uses unless told otherwise: different from the other commands' default 0, so a
@@ -252,8 +251,9 @@ pub fn run_reference(args: ReferenceArgs) -> anyhow::Result<i32> {
                 time_limit: end,
                 seed,
                 progress: !args.quiet,
-                snapshots: Some(SnapshotHook { times, sink: Arc::new(sink) }),
+                snapshots: Some(SnapshotHook::images(times, sink)),
                 first_sample,
+                ..Default::default()
             };
             let output = pool.install(|| integrator.render(&scene, &options, &CANCEL));
             // Dropping the options drops the sink and with it the sender, which ends the writer's loop.

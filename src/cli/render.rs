@@ -2,18 +2,20 @@
 //! with progress, time budget and Ctrl-C, and writes every output atomically with the seed, integrator
 //! and sample count in its metadata.
 
+use super::farm::{self, Checkpoint};
 use super::tev::{TevStream, TEV_DEFAULT_ADDRESS, TEV_INTERVAL};
 use super::{
-    check_output_paths, install_ctrlc_handler, load, parse_accel, parse_hslt_direction, thread_pool,
-    MemoryArgs, SceneArgs, CANCEL,
+    check_output_paths, check_seconds, install_ctrlc_handler, load, parse_accel, parse_hslt_direction,
+    thread_pool, MemoryArgs, SceneArgs, CANCEL,
 };
 use crate::image::{ImageBuf, Metadata};
 use crate::integrators::aov::{Aov, AovPass};
 use crate::metropolis::direct::DirectPass;
 use crate::metropolis::MutationKind;
 use crate::path::MisHeuristic;
+use crate::registry::IntegratorSettings;
 use crate::registry::{self, IntegratorKind};
-use crate::render::{DepthLimits, RenderOptions, RenderStats};
+use crate::render::{DepthLimits, RenderOptions, RenderOutput, RenderState, RenderStats, Share, Work};
 use crate::render::{Snapshot, SnapshotHook};
 use crate::scene::Scene;
 use anyhow::{anyhow, bail, Context};
@@ -24,15 +26,41 @@ use std::time::Duration;
 
 #[derive(Args, Debug)]
 pub struct RenderArgs {
-    #[command(flatten)]
-    pub scene: SceneArgs,
+    /// Scene file (Mitsuba XML, version 3.x or 0.6); with --resume, the checkpoint's.
+    #[arg(value_name = "SCENE", required_unless_present = "resume", conflicts_with = "resume")]
+    pub scene: Option<PathBuf>,
+    /// Set a scene parameter declared with <default name=.. value=..>, e.g. -D spp=256.
+    #[arg(short = 'D', value_name = "NAME=VALUE", value_parser = super::parse_define, conflicts_with = "resume")]
+    pub define: Vec<(String, String)>,
     /// Output image(s); the format follows the extension (.exr, .png, .jpg, .tif, .hdr). Repeatable.
     #[arg(short, long = "output", required = true)]
     pub output: Vec<PathBuf>,
     /// Integrator (overrides the scene's <integrator>): pt, bdpt, pssmlt, mlt, memlt, hslt, hslt+mlt
     /// (the path-space ones as far as this build implements their mutations).
-    #[arg(long)]
+    #[arg(long, conflicts_with = "resume")]
     pub integrator: Option<String>,
+    /// Render the K-th of N disjoint shares of the work, for a farm (1 ≤ K ≤ N): pixel integrators
+    /// take their share of every pixel's sample indices (with --spp the N parts together are exactly
+    /// the single render with the same seed; with only --time each part draws streams of its own),
+    /// Metropolis ones their share of the seed samples, chains and mutations. EXR outputs keep what
+    /// `hslt merge` needs to combine any subset of the parts.
+    #[arg(long, value_name = "K/N", value_parser = super::farm::parse_part, conflicts_with = "resume")]
+    pub part: Option<crate::render::Share>,
+    /// Keep the render's state in this EXR (the image so far, the film's sums and the command line),
+    /// written atomically every --checkpoint-every seconds, at the end, and when Ctrl-C, SIGTERM or
+    /// SIGHUP stops the render; `hslt render --resume FILE -o OUT` continues it.
+    #[arg(long, value_name = "FILE.exr")]
+    pub checkpoint: Option<PathBuf>,
+    /// Seconds between checkpoints.
+    #[arg(long, value_name = "SECONDS", default_value_t = 300.0)]
+    pub checkpoint_every: f64,
+    /// Continue the render recorded in this checkpoint: its scene (refused if the file changed),
+    /// integrator, options, seed and remaining work (--spp, --time) come from it; give the outputs,
+    /// and optionally --threads, --quiet, --checkpoint (default: this same file) and the like. A pixel
+    /// integrator continues its per-pixel sample streams, so the result equals the uninterrupted
+    /// render; a Metropolis one adds new chains (a fresh seeding pass) and pools b with the earlier runs.
+    #[arg(long, value_name = "FILE.exr")]
+    pub resume: Option<PathBuf>,
     /// BDPT: also write each strategy's weighted contribution, for path depths up to N, as extra EXR
     /// layers named d<depth>_s<s>_t<t> (Veach's and pbrt's per-strategy figures).
     #[arg(long, value_name = "N")]
@@ -80,16 +108,16 @@ pub struct RenderArgs {
     #[arg(long, value_name = "F")]
     pub direct_share: Option<f64>,
     /// Samples per pixel (overrides the scene's sampler); with --time, a cap.
-    #[arg(long)]
+    #[arg(long, conflicts_with = "resume")]
     pub spp: Option<u32>,
     /// Render for this many seconds.
-    #[arg(long, value_name = "SECONDS")]
+    #[arg(long, value_name = "SECONDS", conflicts_with = "resume")]
     pub time: Option<f64>,
     /// Worker threads (0 = all cores).
     #[arg(long, default_value_t = 0)]
     pub threads: usize,
     /// Seed of all random streams.
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, conflicts_with = "resume")]
     pub seed: u64,
     /// Longest path in segments, Mitsuba's meaning (-1 = unbounded); overrides the scene.
     #[arg(long, allow_negative_numbers = true)]
@@ -131,7 +159,32 @@ pub struct RenderArgs {
 }
 
 pub(super) fn run_render(args: RenderArgs) -> anyhow::Result<i32> {
+    // A resumed render is the recorded command line with this one's outputs and run options.
+    let resumed = args.resume.as_deref().map(Checkpoint::open).transpose()?;
+    let (args, command_line) = match &resumed {
+        Some(c) => (c.render_args(&args)?, c.args.clone()),
+        None => (args, std::env::args().skip(1).collect::<Vec<String>>()),
+    };
     check_output_paths(&args.output)?;
+    let keeps_state = args.part.is_some() || args.checkpoint.is_some();
+    if let Some(path) = &args.checkpoint {
+        if path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref() != Some("exr") {
+            bail!("--checkpoint {}: a checkpoint is an .exr file", path.display());
+        }
+        check_output_paths(std::slice::from_ref(path))?;
+        check_seconds("--checkpoint-every", args.checkpoint_every)?;
+    }
+    if keeps_state && args.bdpt_strategies.is_some() {
+        bail!("--bdpt-strategies cannot be combined with --part, --checkpoint or --resume (its layers are not merged)");
+    }
+    if args.part.is_some() {
+        if args.aov.is_some() {
+            bail!("--aov cannot be combined with --part (render the AOVs once, apart from the parts)");
+        }
+        if !args.output.iter().any(|o| o.extension().and_then(|e| e.to_str()) == Some("exr")) {
+            bail!("--part writes what `hslt merge` needs into EXR outputs: give at least one output ending in .exr");
+        }
+    }
     if let Some(dir) = args.stats_json.as_ref().and_then(|p| p.parent()).filter(|d| !d.as_os_str().is_empty())
     {
         if !dir.is_dir() {
@@ -156,7 +209,20 @@ pub(super) fn run_render(args: RenderArgs) -> anyhow::Result<i32> {
         }
     }
     args.memory.apply();
-    let scene = load(&args.scene, parse_accel(&args.accel)?)?;
+    let scene_args =
+        SceneArgs { scene: args.scene.clone().context("no scene file given")?, define: args.define.clone() };
+    let scene = load(&scene_args, parse_accel(&args.accel)?)?;
+    let scene_hash =
+        if keeps_state { Some(farm::scene_hash(&scene_args.scene, &args.define)?) } else { None };
+    let earlier = match &resumed {
+        Some(c) => {
+            if c.complete {
+                bail!("{}: this render is complete; its image is in the checkpoint", c.path.display());
+            }
+            Some(c.state(scene_hash.as_deref().unwrap_or_default(), scene.film.rfilter)?)
+        }
+        None => None,
+    };
     let kind_name = args.integrator.clone().unwrap_or_else(|| scene.integrator.kind.clone());
     let kind = IntegratorKind::parse(&kind_name).map_err(anyhow::Error::msg)?;
     let limits = DepthLimits {
@@ -232,14 +298,52 @@ pub(super) fn run_render(args: RenderArgs) -> anyhow::Result<i32> {
     }
     settings.mutation.specular_threshold = args.specular_threshold;
     settings.mutation.halfvector.direction = parse_hslt_direction(&args.hslt_direction)?;
-    let integrator = registry::make_with(kind, &settings);
-    let mut options = RenderOptions {
+    let options = RenderOptions {
         spp: args.spp.or(if args.time.is_some() { None } else { Some(scene.spp) }),
         time_limit: args.time.map(Duration::from_secs_f64),
         seed: args.seed,
         progress: !args.quiet,
+        share: args.part.unwrap_or_default(),
         ..Default::default()
     };
+    if let Some(share) = args.part {
+        check_part(kind, share, &options, &settings)?;
+    }
+    let integrator = registry::make_with(kind, &settings);
+    // What this run renders: all of it, or the rest of a resumed render (`None`: nothing is left).
+    let segment = match (&resumed, &earlier) {
+        (Some(c), Some(state)) => continued_options(&options, state, c, &scene),
+        _ => Some(options.clone()),
+    };
+    let mut run_options =
+        segment.clone().unwrap_or_else(|| RenderOptions { spp: Some(0), ..options.clone() });
+    let (elapsed_before, segments) = resumed.as_ref().map_or((0.0, 1), |c| (c.elapsed, c.segments + 1));
+    let scene_path = std::fs::canonicalize(&scene_args.scene).unwrap_or_else(|_| scene_args.scene.clone());
+    // What every state file of this render records besides its work: the part, the scene's hash and
+    // the options the parts must share, and for a checkpoint the command line and time so far.
+    let mut state_fields: Metadata = Vec::new();
+    if let Some(hash) = &scene_hash {
+        let share = args.part.unwrap_or_default();
+        state_fields.push((farm::PART_COUNT.into(), share.count.to_string()));
+        state_fields.push((farm::PART_COVERS.into(), (share.index + 1).to_string()));
+        state_fields.push((farm::SCENE_HASH.into(), hash.clone()));
+        state_fields.push((farm::SETTINGS.into(), farm::image_settings(&args)));
+        if args.part.is_some() {
+            state_fields.push(("hslt.part".into(), format!("{}/{}", share.index + 1, share.count)));
+        }
+    }
+    let writer = args.checkpoint.clone().map(|path| {
+        let base = metadata(&scene, kind.name(), &options, limits, 0, &RenderStats::default());
+        Arc::new(CheckpointWriter {
+            path,
+            earlier: earlier.clone(),
+            meta: base.into_iter().chain(state_fields.iter().cloned()).collect(),
+            command_line: command_line.clone(),
+            scene: scene_path.clone(),
+            elapsed_before,
+            segments,
+        })
+    });
     install_ctrlc_handler("finishing the current tiles and writing the image so far");
     let pool = thread_pool(args.threads)?;
     let threads = pool.current_num_threads();
@@ -251,31 +355,76 @@ pub(super) fn run_render(args: RenderArgs) -> anyhow::Result<i32> {
         // The live view: snapshots every TEV_INTERVAL go through a channel of one to a thread that
         // sends them, so the render never waits on the network (a frame tev is still reading is
         // skipped instead).
+        let mut times: Vec<Duration> = Vec::new();
+        let within = |t: &Duration| run_options.time_limit.is_none_or(|limit| *t < limit);
         let viewer = tev.take().filter(TevStream::is_connected).map(|mut stream| {
             let (send, receive) = std::sync::mpsc::sync_channel::<ImageBuf>(1);
-            let times = (1..=100_000u32)
-                .map(|k| TEV_INTERVAL * k)
-                .take_while(|t| options.time_limit.is_none_or(|limit| *t < limit))
-                .collect();
-            let sink = move |s: &Snapshot| {
-                let _ = send.try_send(s.image.clone());
-            };
-            options.snapshots = Some(SnapshotHook { times, sink: Arc::new(sink) });
-            scope.spawn(move || {
+            times.extend((1..=100_000u32).map(|k| TEV_INTERVAL * k).take_while(within));
+            let handle = scope.spawn(move || {
                 for image in receive {
                     stream.send(&image);
                 }
                 stream
-            })
+            });
+            (send, handle)
         });
-        let result = args.memory.watch(|| pool.install(|| integrator.render(&scene, &options, &CANCEL)));
-        // Dropping the hook drops the sender, which ends the viewer's loop.
-        options.snapshots = None;
-        tev = viewer.and_then(|v| v.join().ok());
+        let every = Duration::from_secs_f64(args.checkpoint_every.min(1e9));
+        if writer.is_some() {
+            times.extend((1..=100_000u32).map(|k| every * k).take_while(within));
+        }
+        times.sort();
+        times.dedup();
+        let sender = viewer.as_ref().map(|(send, _)| send.clone());
+        let checkpoints = writer.clone();
+        let next_checkpoint = std::sync::Mutex::new(every);
+        let sink = move |s: &Snapshot| {
+            if let Some(send) = &sender {
+                let _ = send.try_send(s.image.clone());
+            }
+            let (Some(w), Some(state)) = (&checkpoints, &s.state) else { return };
+            let mut next = next_checkpoint.lock().unwrap_or_else(|e| e.into_inner());
+            if s.elapsed >= *next {
+                while *next <= s.elapsed {
+                    *next += every;
+                }
+                if let Err(e) = w.write(state, s.elapsed.as_secs_f64(), false, &Vec::new()) {
+                    // The render goes on: the next checkpoint or the final write may still succeed.
+                    eprintln!("warning: checkpoint not written: {e:#}");
+                }
+            }
+        };
+        if !times.is_empty() {
+            run_options.snapshots =
+                Some(SnapshotHook { times, sink: Arc::new(sink), with_state: writer.is_some() });
+        }
+        let result = args.memory.watch(|| match &segment {
+            Some(_) => pool.install(|| integrator.render(&scene, &run_options, &CANCEL)),
+            None => nothing_left(&scene, earlier.as_ref()),
+        });
+        // Dropping the hook drops the last sender, which ends the viewer's loop.
+        run_options.snapshots = None;
+        tev = viewer.and_then(|(send, handle)| {
+            drop(send);
+            handle.join().ok()
+        });
         result
     });
-    let stats = output.stats;
-    let image = output.film.to_image();
+    let mut stats = output.stats;
+    // The render's state: this run's film, and for a resumed render the earlier runs' with it.
+    let mut state = RenderState::new(output.film, output.work);
+    if let Some(e) = &earlier {
+        let mut total = e.clone();
+        total.absorb(&state).map_err(|err| anyhow!("cannot add this run to the checkpoint's: {err}"))?;
+        state = total;
+    }
+    let pixels = (scene.film.width * scene.film.height).max(1) as u64;
+    (stats.min_spp, stats.samples) = match state.work {
+        Work::Pixels { spp } => (spp.min(u32::MAX as u64) as u32, spp * pixels),
+        Work::Chains { mutations, .. } => ((mutations / pixels).min(u32::MAX as u64) as u32, mutations),
+    };
+    let run_elapsed = stats.elapsed;
+    stats.elapsed += Duration::from_secs_f64(elapsed_before);
+    let image = state.image();
     if let Some(stream) = tev.as_mut() {
         stream.send(&image);
     }
@@ -285,7 +434,16 @@ pub(super) fn run_render(args: RenderArgs) -> anyhow::Result<i32> {
     }
     meta.extend(output.metadata);
     meta.extend(process_metadata(&scene, &stats));
-    let layers = output.film.layer_images();
+    if resumed.is_some() {
+        meta.push(("hslt.resumed_segments".into(), segments.to_string()));
+    }
+    meta.extend(state_fields.iter().cloned());
+    let layers = state.film.layer_images();
+    let state_layers = if keeps_state { state.layers() } else { Vec::new() };
+    let state_meta = match keeps_state {
+        true => state.metadata().map_err(|e| anyhow!("cannot record the render's state: {e}"))?,
+        false => Vec::new(),
+    };
     let aovs = match &aov_list {
         Some(list) if !CANCEL.load(std::sync::atomic::Ordering::Relaxed) => {
             let aov_options =
@@ -299,17 +457,39 @@ pub(super) fn run_render(args: RenderArgs) -> anyhow::Result<i32> {
     };
     for out in &args.output {
         let is_exr = out.extension().and_then(|e| e.to_str()) == Some("exr");
-        if layers.is_empty() && (aovs.is_empty() || !is_exr) {
+        if layers.is_empty() && (aovs.is_empty() && state_layers.is_empty() || !is_exr) {
             crate::image::write_image(out, &image, &meta)
         } else {
             let mut all: Vec<(&str, &ImageBuf, Option<&[&str]>)> = vec![("combined", &image, None)];
             all.extend(layers.iter().map(|(name, img)| (name.as_str(), img, None)));
             all.extend(aovs.iter().map(|(aov, img)| (aov.name(), img, Some(aov.channels()))));
+            all.extend(state_layers.iter().map(|(name, img)| (*name, img, None)));
+            let mut meta = meta.clone();
+            meta.extend(state_meta.iter().cloned());
             crate::image::write_exr_parts(out, &all, &meta).map(|_| ())
         }
         .with_context(|| format!("cannot write {}", out.display()))?;
     }
+    if let Some(w) = &writer {
+        let complete = !stats.interrupted && over_memory.is_none();
+        // The final state replaces the checkpoint whole: written from the total, not added to it.
+        let earlier_free = CheckpointWriter { earlier: None, elapsed_before: 0.0, ..(**w).clone() };
+        earlier_free
+            .write(&state, stats.elapsed.as_secs_f64(), complete, &meta)
+            .with_context(|| format!("cannot write the checkpoint {}", w.path.display()))?;
+        if !args.quiet {
+            eprintln!(
+                "checkpoint {}{}",
+                w.path.display(),
+                if complete { " (complete)" } else { ": continue with `hslt render --resume` it" }
+            );
+        }
+    }
+    let _ = run_elapsed;
     if !args.quiet {
+        if segment.is_none() {
+            eprintln!("nothing left to render: the checkpoint holds all the work asked for");
+        }
         print_summary(&args.output, &stats, threads);
         print_metropolis_summary(&meta);
     }
@@ -465,5 +645,138 @@ fn print_metropolis_summary(meta: &Metadata) {
             }
             eprintln!("{line}");
         }
+    }
+}
+
+/// Refuses a part that would get no work: a pixel integrator's share of fewer samples per pixel than
+/// parts, or a Metropolis render split into more parts than it has chains.
+fn check_part(
+    kind: IntegratorKind,
+    share: Share,
+    options: &RenderOptions,
+    settings: &IntegratorSettings,
+) -> anyhow::Result<()> {
+    let n = share.count as u64;
+    match kind {
+        IntegratorKind::Path | IntegratorKind::Bdpt => {
+            if let Some(spp) = options.spp.filter(|&spp| (spp as u64) < n) {
+                bail!("--part K/{n}: {spp} samples per pixel cannot be split into {n} parts (use --spp {n} or more)");
+            }
+        }
+        _ => {
+            let chains = match kind {
+                IntegratorKind::Pssmlt => settings.pssmlt.chains,
+                _ => settings.path_chains.unwrap_or(crate::metropolis::mlt::DEFAULT_PATH_CHAINS),
+            };
+            if (chains as u64) < n {
+                bail!(
+                    "--part K/{n}: {chains} chains cannot be split into {n} parts (use --chains {n} or more)"
+                );
+            }
+        }
+    }
+    Ok(())
+}
+
+/// The options of a run that continues `state`, the work a checkpoint recorded, towards what
+/// `options` asked for in all; `None` when nothing is left. A pixel integrator takes the sample
+/// indices after those already taken, so the two runs are exactly one; a Metropolis one starts new
+/// chains on streams of their own (the segment number is mixed into its seeds).
+fn continued_options(
+    options: &RenderOptions,
+    state: &RenderState,
+    checkpoint: &Checkpoint,
+    scene: &Scene,
+) -> Option<RenderOptions> {
+    let mut run = options.clone();
+    if let Some(limit) = options.time_limit {
+        let left = limit.as_secs_f64() - checkpoint.elapsed;
+        if left <= 0.0 {
+            return None;
+        }
+        run.time_limit = Some(Duration::from_secs_f64(left));
+    }
+    match state.work {
+        Work::Pixels { spp: done } => {
+            run.share = Share::WHOLE;
+            match options.spp {
+                Some(spp) => {
+                    let mine = options.share.range(spp as u64);
+                    let left = (mine.end - mine.start).checked_sub(done).filter(|&n| n > 0)?;
+                    run.first_sample = (mine.start + done) as u32;
+                    run.spp = Some(left as u32);
+                }
+                None => {
+                    run.seed = options.share.stream_seed(options.seed);
+                    run.first_sample = done as u32;
+                }
+            }
+        }
+        Work::Chains { mutations, .. } => {
+            run.first_sample = checkpoint.segments.max(1);
+            run.mutations_done = mutations;
+            if options.spp.is_some() && crate::metropolis::driver::total_mutations(&run, scene) == 0 {
+                return None;
+            }
+        }
+    }
+    Some(run)
+}
+
+/// The output of a run that had nothing left to do.
+fn nothing_left(scene: &Scene, earlier: Option<&RenderState>) -> RenderOutput {
+    let work = match earlier.map(|e| e.work) {
+        Some(Work::Chains { .. }) => Work::Chains { mutations: 0, b_sum: 0.0, b_samples: 0 },
+        _ => Work::Pixels { spp: 0 },
+    };
+    let film = crate::render::Film::with_filter(scene.film.width, scene.film.height, scene.film.rfilter);
+    RenderOutput { film, stats: RenderStats::default(), metadata: Vec::new(), work }
+}
+
+/// Writes checkpoints of one render: the earlier runs' state (when resumed) with this run's so far.
+#[derive(Clone)]
+struct CheckpointWriter {
+    path: PathBuf,
+    earlier: Option<RenderState>,
+    /// The render's metadata without its work (which comes from the state at each write).
+    meta: Metadata,
+    command_line: Vec<String>,
+    scene: PathBuf,
+    elapsed_before: f64,
+    segments: u32,
+}
+
+impl CheckpointWriter {
+    /// Writes `now` (added to the earlier runs' state) after `elapsed` seconds of this run; `extra`
+    /// replaces metadata fields (the final write passes the render's whole metadata).
+    fn write(&self, now: &RenderState, elapsed: f64, complete: bool, extra: &Metadata) -> anyhow::Result<()> {
+        let mut state = now.clone();
+        if let Some(e) = &self.earlier {
+            let mut total = e.clone();
+            total.absorb(now).map_err(|err| anyhow!("{err}"))?;
+            state = total;
+        }
+        let pixels = (state.film.width * state.film.height).max(1) as u64;
+        let (spp, samples) = match state.work {
+            Work::Pixels { spp } => (spp, spp * pixels),
+            Work::Chains { mutations, .. } => (mutations / pixels, mutations),
+        };
+        let total_elapsed = self.elapsed_before + elapsed;
+        let mut meta = self.meta.clone();
+        farm::set_fields(&mut meta, extra.clone());
+        farm::set_fields(
+            &mut meta,
+            vec![
+                ("hslt.spp".into(), spp.to_string()),
+                ("hslt.samples".into(), samples.to_string()),
+                ("hslt.elapsed_seconds".into(), format!("{total_elapsed:.3}")),
+                ("hslt.interrupted".into(), (!complete).to_string()),
+            ],
+        );
+        farm::set_fields(
+            &mut meta,
+            farm::checkpoint_fields(&self.command_line, &self.scene, total_elapsed, self.segments, complete),
+        );
+        farm::write_state(&self.path, &state, &meta)
     }
 }

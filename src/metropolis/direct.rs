@@ -142,6 +142,9 @@ pub fn render_into(
         // A run continuing one of N mutations per pixel (first_sample = N >= 1) starts past the
         // `samples` indices the earlier run's direct pass used.
         first_sample: options.first_sample.saturating_mul(samples.unwrap_or(1 << 16)),
+        // A share of the render (`--part`) takes its share of the pass's sample indices.
+        share: options.share,
+        mutations_done: 0,
     };
     // One-bounce light (three vertices): the path tracer, emitters seen directly left out.
     let lit = PathTracer {
@@ -176,6 +179,7 @@ pub fn render_into(
         elapsed += seen_stats.elapsed;
         metadata.push(("hslt.mlt.direct_seen_samples".into(), seen_stats.min_spp.to_string()));
     }
-    film.add_image_as_sample(&image);
+    // Weighted by its samples, so merged renders (`render::RenderState`) weight their passes by work.
+    film.add_image_as_samples(&image, lit_stats.min_spp as u64);
     metadata.push(("hslt.mlt.seconds_direct".into(), format!("{:.3}", elapsed.as_secs_f64())));
 }

@@ -4,7 +4,7 @@
 //! scheduling or thread count. Rounds end at snapshot times, the time limit and cancellation.
 
 use super::chain::{Chain, ChainState, MutationStats, Streaks, STUCK_STREAK};
-use crate::render::{Film, RenderOptions, Snapshot, SnapshotClock, Splat};
+use crate::render::{Film, RenderOptions, RenderState, Snapshot, SnapshotClock, Splat, Work};
 use rayon::prelude::*;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
@@ -107,6 +107,8 @@ pub struct DriveOutcome {
     pub interrupted: bool,
     /// Each chain's rejection streaks.
     pub streaks: Vec<Streaks>,
+    /// The work behind the film: mutations, and b as a sum over independent samples.
+    pub work: Work,
 }
 
 /// Work per chain: `total` mutations split evenly, or unbounded (`u64::MAX`) when only a time limit
@@ -115,6 +117,27 @@ pub fn quotas(total: u64, chains: usize) -> Vec<u64> {
     // No chains (none found a starting path): no work, and `drive` returns the film as it is.
     let n = chains as u64;
     (0..n).map(|c| if total == u64::MAX { u64::MAX } else { total / n + u64::from(c < total % n) }).collect()
+}
+
+/// Mutations a render runs in all: `spp` keeps its meaning of work per pixel (this share's part of it
+/// for `--part`), and with only a time limit chains run until it (`u64::MAX`).
+pub fn total_mutations(options: &RenderOptions, scene: &crate::scene::Scene) -> u64 {
+    let pixels = (scene.film.width * scene.film.height).max(1) as u64;
+    let spp = match (options.spp, options.time_limit) {
+        (Some(spp), _) => spp.max(1),
+        (None, Some(_)) => return u64::MAX,
+        (None, None) => scene.spp.max(1),
+    };
+    let range = options.share.range(spp as u64 * pixels);
+    (range.end - range.start).saturating_sub(options.mutations_done)
+}
+
+/// Indices of this render's chains: `chains` of them (no more than there are mutations to run), or
+/// this share's part of them; a chain's random streams derive from its index.
+pub fn chain_range(options: &RenderOptions, chains: usize, total_mutations: u64) -> std::ops::Range<usize> {
+    let all = options.share.range(chains.max(1) as u64);
+    let share = (all.end - all.start).min(total_mutations.min(1 << 32));
+    all.start as usize..(all.start + share) as usize
 }
 
 /// Sums per-mutation statistics over chains (chains list their mutations in the same order).
@@ -134,21 +157,25 @@ pub fn merge_stats<'a>(all: impl IntoIterator<Item = &'a [MutationStats]>) -> Ve
 
 /// Runs `chains` until their quotas are done, the time limit passes or `cancel` is set; calls the
 /// snapshot hook of `options` between rounds. `normalization` gives b, the mean target over the whole
-/// state space, from the merged statistics so far (PSSMLT refines the seeding pass's estimate with its
-/// large steps); `started` is when `render` began.
+/// state space, as a sum of independent estimates and their count, from the merged statistics so far
+/// (the seeding pass's, refined by large steps); `started` is when `render` began.
 #[allow(clippy::too_many_arguments)]
 pub fn drive(
     options: &RenderOptions,
     cancel: &AtomicBool,
     started: Instant,
-    normalization: impl Fn(&[MutationStats]) -> f64,
+    normalization: impl Fn(&[MutationStats]) -> (f64, u64),
     mut film: Film,
     chains: &mut [Box<dyn RunningChain + '_>],
     quotas: &[u64],
     snapshot_extra: impl Fn(&[MutationStats]) -> Vec<(String, String)>,
 ) -> DriveOutcome {
     assert_eq!(chains.len(), quotas.len());
-    let pixels = (film.width * film.height).max(1) as f64;
+    let pixels = film.width * film.height;
+    let work = |stats: &[MutationStats], mutations: u64| {
+        let (b_sum, b_samples) = normalization(stats);
+        Work::Chains { mutations, b_sum, b_samples }
+    };
     let deadline = options.time_limit.map(|l| started + l);
     let mut remaining: Vec<u64> = quotas.to_vec();
     let mut clock = SnapshotClock::new(options);
@@ -184,16 +211,18 @@ pub fn drive(
                 film.add_splat(splat);
             }
         }
+        let wants_state = clock.wants_state();
         clock.poll(started.elapsed(), || {
             let stats = merge_stats(chains.iter().map(|c| c.stats()));
-            film.splat_scale =
-                if mutations > 0 { normalization(&stats) * pixels / mutations as f64 } else { 0.0 };
+            let work = work(&stats, mutations);
+            film.splat_scale = work.splat_scale(pixels);
             Snapshot {
                 elapsed: started.elapsed(),
                 image: film.to_image(),
                 samples: mutations,
-                spp: (mutations as f64 / pixels) as u32,
+                spp: (mutations as f64 / pixels.max(1) as f64) as u32,
                 extra: snapshot_extra(&stats),
+                state: wants_state.then(|| RenderState::new(film.clone(), work)),
             }
         });
         // A round that ran nothing (deadline reached inside every chain) ends the loop next time round.
@@ -203,11 +232,12 @@ pub fn drive(
     }
     let stats = merge_stats(chains.iter().map(|c| c.stats()));
     let rays = chains.iter().map(|c| c.rays()).sum();
-    film.splat_scale = if mutations > 0 { normalization(&stats) * pixels / mutations as f64 } else { 0.0 };
+    let work = work(&stats, mutations);
+    film.splat_scale = work.splat_scale(pixels);
     let streaks = chains.iter().map(|c| c.streaks()).collect();
     let shadow_rays = chains.iter().map(|c| c.shadow_rays()).sum();
     let interrupted = cancel.load(Ordering::Relaxed);
-    DriveOutcome { film, mutations, stats, rays, shadow_rays, interrupted, streaks }
+    DriveOutcome { film, mutations, stats, rays, shadow_rays, interrupted, streaks, work }
 }
 
 /// Metadata keys `hslt.mlt.<mutation>.<what>` for each mutation: counts, acceptance, failure reasons

@@ -11,7 +11,7 @@ use super::mutations::{self, MutationKind, MutationSettings};
 use super::path_state::{PathContext, PathState};
 use super::pssmlt::{acceptance_extra, sample_cdf, PssContext, Pssmlt};
 use crate::integrators::Bdpt;
-use crate::render::{Film, Integrator, RenderOptions, RenderOutput, RenderStats, SampleCounters};
+use crate::render::{Film, Integrator, RenderOptions, RenderOutput, RenderStats, SampleCounters, Work};
 use crate::sampling::Sampler;
 use crate::scene::Scene;
 use crate::spectrum::luminance;
@@ -103,7 +103,19 @@ pub struct PathSeeds {
 
 impl PathSeeds {
     pub fn run(scene: &Scene, bdpt: &Bdpt, seed: u64, n: usize, cancel: &AtomicBool) -> PathSeeds {
+        PathSeeds::run_range(scene, bdpt, seed, 0..n, cancel)
+    }
+
+    /// Runs the seed samples with indices `indices` (a share of a render takes its share of them).
+    pub fn run_range(
+        scene: &Scene,
+        bdpt: &Bdpt,
+        seed: u64,
+        indices: std::ops::Range<usize>,
+        cancel: &AtomicBool,
+    ) -> PathSeeds {
         type Chunk = (Vec<(Candidate, f64, (usize, usize))>, SampleCounters, u64, f64);
+        let (first, n) = (indices.start, indices.len());
         let chunks: Vec<Chunk> = (0..n.div_ceil(SEED_CHUNK))
             .into_par_iter()
             .map(|chunk| {
@@ -111,7 +123,7 @@ impl PathSeeds {
                 if cancel.load(Ordering::Relaxed) {
                     return out;
                 }
-                for i in chunk * SEED_CHUNK..((chunk + 1) * SEED_CHUNK).min(n) {
+                for i in first + chunk * SEED_CHUNK..first + ((chunk + 1) * SEED_CHUNK).min(n) {
                     let mut ctx = PssContext::new(scene, bdpt, Pssmlt::seed_pss(seed, i));
                     let _ = ctx.evaluate();
                     out.1 += ctx.counters;
@@ -252,8 +264,11 @@ impl Integrator for PathMlt {
         let direct = self.settings.direct;
         direct::render_into(&mut film, scene, &self.bdpt, direct, options, cancel, &mut stats, &mut metadata);
         let seed = options.seed ^ (options.first_sample as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15);
-        let n_seed = self.settings.seed_paths.unwrap_or_else(|| default_seed_paths(pixels)).max(1);
-        let seeds = PathSeeds::run(scene, &self.bdpt, seed, n_seed, cancel);
+        let all_seeds = self.settings.seed_paths.unwrap_or_else(|| default_seed_paths(pixels)).max(1);
+        let seed_range = options.share.range(all_seeds as u64);
+        let n_seed = (seed_range.end - seed_range.start) as usize;
+        let seed_indices = seed_range.start as usize..seed_range.end as usize;
+        let seeds = PathSeeds::run_range(scene, &self.bdpt, seed, seed_indices, cancel);
         stats.rays += seeds.rays.rays;
         stats.shadow_rays += seeds.rays.shadow_rays;
         stats.invalid_samples += seeds.invalid;
@@ -270,24 +285,27 @@ impl Integrator for PathMlt {
         }
         if cancel.load(Ordering::Relaxed) || !(b > 0.0 && b.is_finite()) {
             stats.interrupted = cancel.load(Ordering::Relaxed);
-            if !stats.interrupted {
-                metadata.push(("hslt.mlt.status".into(), driver::empty_seeding_status(n_seed, &self.bdpt)));
-            }
+            // An interrupted seeding pass left samples out of its sum, so it counts for nothing.
+            let work = match stats.interrupted {
+                true => Work::Chains { mutations: 0, b_sum: 0.0, b_samples: 0 },
+                false => {
+                    metadata
+                        .push(("hslt.mlt.status".into(), driver::empty_seeding_status(n_seed, &self.bdpt)));
+                    Work::Chains { mutations: 0, b_sum: b * n_seed as f64, b_samples: n_seed as u64 }
+                }
+            };
             film.splat_scale = 0.0;
             stats.elapsed = start_time.elapsed();
-            return RenderOutput { film, stats, metadata };
+            return RenderOutput { film, stats, metadata, work };
         }
-        let total_mutations = match (options.spp, options.time_limit) {
-            (Some(spp), _) => spp.max(1) as u64 * pixels as u64,
-            (None, Some(_)) => u64::MAX,
-            (None, None) => scene.spp.max(1) as u64 * pixels as u64,
-        };
-        let n_chains = self.settings.chains.max(1).min(total_mutations.min(1 << 32) as usize);
+        let total_mutations = driver::total_mutations(options, scene);
+        let chain_range = driver::chain_range(options, self.settings.chains, total_mutations);
+        let n_chains = chain_range.len();
         let chains_start = Instant::now();
         let mut mutation_settings = self.settings.mutation.clone();
         mutation_settings.large_step_strategies = StrategyPmf::from_histogram(&seeds.by_strategy, &self.bdpt);
         // Starting a million chains takes seconds and gigabytes: a cancel (Ctrl-C, --max-memory) stops it too.
-        let started: Vec<_> = (0..n_chains)
+        let started: Vec<_> = chain_range
             .into_par_iter()
             .map(|c| match cancel.load(Ordering::Relaxed) {
                 true => (None, 0),
@@ -298,7 +316,9 @@ impl Integrator for PathMlt {
             stats.interrupted = true;
             film.splat_scale = 0.0;
             stats.elapsed = start_time.elapsed();
-            return RenderOutput { film, stats, metadata };
+            // The seeding pass is complete: its estimate of b counts, with no mutations.
+            let work = Work::Chains { mutations: 0, b_sum: b * n_seed as f64, b_samples: n_seed as u64 };
+            return RenderOutput { film, stats, metadata, work };
         }
         let redraws: usize = started.iter().map(|(_, r)| r).sum();
         metadata.push(("hslt.mlt.seed_redraws".into(), redraws.to_string()));
@@ -322,7 +342,7 @@ impl Integrator for PathMlt {
                 .filter(|s| s.name == MutationKind::LargeStep.name())
                 .map(|s| (s.sums.get(largestep::B_ESTIMATE).copied().unwrap_or(0.0), s.proposed))
                 .fold((0.0, 0), |(a, n), (x, m)| (a + x, n + m));
-            (seed_sum + large_sum) / (n_seed as u64 + large_n) as f64
+            (seed_sum + large_sum, n_seed as u64 + large_n)
         };
         let outcome = driver::drive(
             options,
@@ -334,8 +354,8 @@ impl Integrator for PathMlt {
             &quotas,
             acceptance_extra,
         );
-        metadata
-            .push(("hslt.mlt.normalization_final".into(), format!("{:.6e}", normalization(&outcome.stats))));
+        let (b_sum, b_samples) = normalization(&outcome.stats);
+        metadata.push(("hslt.mlt.normalization_final".into(), format!("{:.6e}", b_sum / b_samples as f64)));
         let mutation_stats: Vec<MutationStats> = outcome.stats;
         stats.rays += outcome.rays;
         stats.shadow_rays += outcome.shadow_rays;
@@ -353,6 +373,6 @@ impl Integrator for PathMlt {
             "hslt.mlt.seconds_seeding".into(),
             format!("{:.3}", driver::seconds(start_time, chains_start)),
         ));
-        RenderOutput { film: outcome.film, stats, metadata }
+        RenderOutput { film: outcome.film, stats, metadata, work: outcome.work }
     }
 }

@@ -13,7 +13,9 @@ use crate::integrators::{
     bdpt::{Contribution, Subpaths},
     Bdpt,
 };
-use crate::render::{Film, Integrator, RenderOptions, RenderOutput, RenderStats, SampleCounters, Splat};
+use crate::render::{
+    Film, Integrator, RenderOptions, RenderOutput, RenderStats, SampleCounters, Splat, Work,
+};
 use crate::sampling::{SampleSource, Sampler};
 use crate::scene::Scene;
 use crate::spectrum::Spectrum;
@@ -204,15 +206,17 @@ impl Pssmlt {
 
     /// Chain `chain_index`, started from a seed sample drawn in proportion to its target: the chain is
     /// then in its stationary distribution from the first mutation, so no start-up samples are discarded.
+    /// `cdf` runs over the seed samples from index `first_seed` on.
     fn start_chain<'a>(
         &'a self,
         scene: &'a Scene,
         seed: u64,
         chain_index: usize,
         cdf: &[f64],
+        first_seed: usize,
     ) -> Option<ChainRunner<PssSample, PssContext<'a>>> {
         let mut rng = Sampler::new(seed, chain_index as u64, CHAIN_STREAM);
-        let start_index = sample_cdf(cdf, rng.next_f64())?;
+        let start_index = first_seed + sample_cdf(cdf, rng.next_f64())?;
         let mut ctx = PssContext::new(scene, &self.bdpt, Self::seed_pss(seed, start_index));
         let start = ctx.evaluate();
         // Chains that start from the same seed sample must still diverge.
@@ -275,12 +279,16 @@ impl Integrator for Pssmlt {
 
         // Runs that continue an earlier one (`first_sample` > 0) must be independent of it.
         let seed = options.seed ^ (options.first_sample as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15);
-        // Seeding pass: independent BDPT samples estimate b = E[f] and give the chains their start.
-        let n_seed = self.settings.seed_paths_for(pixels);
+        // Seeding pass: independent BDPT samples estimate b = E[f] and give the chains their start. A
+        // share of the render (`--part`) takes its share of the seed samples' indices, and of the chains.
+        let seed_range = options.share.range(self.settings.seed_paths_for(pixels) as u64);
+        let first_seed = seed_range.start as usize;
+        let n_seed = (seed_range.end - seed_range.start) as usize;
         let chunks: Vec<(Vec<f64>, u64, SampleCounters)> = (0..n_seed.div_ceil(SEED_CHUNK))
             .into_par_iter()
             .map(|chunk| {
-                let range = chunk * SEED_CHUNK..((chunk + 1) * SEED_CHUNK).min(n_seed);
+                let range =
+                    first_seed + chunk * SEED_CHUNK..first_seed + ((chunk + 1) * SEED_CHUNK).min(n_seed);
                 let (mut targets, mut invalid, mut rays) =
                     (Vec::with_capacity(range.len()), 0, SampleCounters::default());
                 if cancel.load(Ordering::Relaxed) {
@@ -312,8 +320,9 @@ impl Integrator for Pssmlt {
             }
         }
         drop(chunks);
-        let b = sum / n_seed as f64;
-        let nonzero_seeds = cdf.windows(2).filter(|w| w[1] > w[0]).count() + usize::from(cdf[0] > 0.0);
+        let b = if n_seed > 0 { sum / n_seed as f64 } else { 0.0 };
+        let nonzero_seeds = cdf.windows(2).filter(|w| w[1] > w[0]).count()
+            + usize::from(cdf.first().is_some_and(|&c| c > 0.0));
         metadata.push(("hslt.mlt.seed_paths".into(), n_seed.to_string()));
         metadata.push(("hslt.mlt.seed_paths_nonzero".into(), nonzero_seeds.to_string()));
         metadata.push(("hslt.mlt.normalization".into(), format!("{b:.6e}")));
@@ -324,22 +333,25 @@ impl Integrator for Pssmlt {
             if !stats.interrupted {
                 metadata.push(("hslt.mlt.status".into(), driver::empty_seeding_status(n_seed, &self.bdpt)));
             }
+            // An interrupted seeding pass left samples out of its sum, so it counts for nothing; a
+            // complete one that found nothing still tells a merge that b is small.
+            let work = match stats.interrupted {
+                true => Work::Chains { mutations: 0, b_sum: 0.0, b_samples: 0 },
+                false => Work::Chains { mutations: 0, b_sum: sum, b_samples: n_seed as u64 },
+            };
             film.splat_scale = 0.0;
             stats.elapsed = start_time.elapsed();
-            return RenderOutput { film, stats, metadata };
+            return RenderOutput { film, stats, metadata, work };
         }
 
         // Work: spp keeps its meaning of work per pixel; with only a time limit, chains run until it.
-        let total_mutations = match (options.spp, options.time_limit) {
-            (Some(spp), _) => spp.max(1) as u64 * pixels as u64,
-            (None, Some(_)) => u64::MAX,
-            (None, None) => scene.spp.max(1) as u64 * pixels as u64,
-        };
-        let n_chains = self.settings.chains.max(1).min(total_mutations.min(1 << 32) as usize);
+        let total_mutations = driver::total_mutations(options, scene);
+        let chain_range = driver::chain_range(options, self.settings.chains, total_mutations);
+        let n_chains = chain_range.len();
         let chains_start = Instant::now();
-        let mut chains: Vec<Box<dyn RunningChain + '_>> = (0..n_chains)
+        let mut chains: Vec<Box<dyn RunningChain + '_>> = chain_range
             .into_par_iter()
-            .filter_map(|c| self.start_chain(scene, seed, c, &cdf))
+            .filter_map(|c| self.start_chain(scene, seed, c, &cdf, first_seed))
             .map(|c| Box::new(c) as Box<dyn RunningChain + '_>)
             .collect();
         let quotas = driver::quotas(total_mutations, chains.len());
@@ -352,15 +364,16 @@ impl Integrator for Pssmlt {
                 .filter(|s| s.name == "large_step")
                 .map(|s| (s.sums.get(LARGE_STEP_TARGET).copied().unwrap_or(0.0), s.proposed))
                 .fold((0.0, 0), |(a, n), (x, m)| (a + x, n + m));
-            (seed_sum + large_sum) / (n_seed as u64 + large_n) as f64
+            (seed_sum + large_sum, n_seed as u64 + large_n)
         };
         let outcome =
             driver::drive(options, cancel, start_time, normalization, film, &mut chains, &quotas, |stats| {
                 acceptance_extra(stats)
             });
-        metadata
-            .push(("hslt.mlt.normalization_final".into(), format!("{:.6e}", normalization(&outcome.stats))));
+        let (b_sum, b_samples) = normalization(&outcome.stats);
+        metadata.push(("hslt.mlt.normalization_final".into(), format!("{:.6e}", b_sum / b_samples as f64)));
         film = outcome.film;
+        let work = outcome.work;
         metadata.extend(driver::streak_metadata(&outcome.streaks, outcome.mutations));
         let mutation_stats = outcome.stats;
         let mutations_done = outcome.mutations;
@@ -385,7 +398,7 @@ impl Integrator for Pssmlt {
             "hslt.mlt.seconds_seeding".into(),
             format!("{:.3}", driver::seconds(start_time, chains_start)),
         ));
-        RenderOutput { film, stats, metadata }
+        RenderOutput { film, stats, metadata, work }
     }
 }
 

@@ -99,15 +99,59 @@ impl Film {
     /// Adds a resolved image (same size, RGB) as one more sample of every pixel: a separately rendered
     /// component that the splats then land on (Metropolis integrators' direct-illumination pass).
     pub fn add_image_as_sample(&mut self, image: &ImageBuf) {
+        self.add_image_as_samples(image, 1);
+    }
+
+    /// Adds a resolved image (same size, RGB) as the mean of `samples` samples of every pixel, so that
+    /// films merged later weight it by the work behind it (a direct pass of 16 spp against one of 48).
+    pub fn add_image_as_samples(&mut self, image: &ImageBuf, samples: u64) {
         assert_eq!((image.width, image.height), (self.width, self.height), "adding an image of another size");
+        if samples == 0 {
+            return;
+        }
+        let n = samples as f64;
         for (i, px) in image.data.chunks_exact(image.channels).enumerate() {
             for c in 0..3 {
                 let v = px[c.min(image.channels - 1)] as f64;
-                self.sums[i][c] += v;
-                self.squares[i][c] += v * v;
+                self.sums[i][c] += v * n;
+                self.squares[i][c] += v * v * n;
             }
-            self.counts[i] += 1;
+            self.counts[i] += samples;
         }
+    }
+
+    /// Adds an image (same size, RGB) to the unscaled splat sums.
+    pub fn add_splat_image(&mut self, image: &ImageBuf) {
+        assert_eq!((image.width, image.height), (self.width, self.height), "adding an image of another size");
+        for (acc, px) in self.splats.iter_mut().zip(image.data.chunks_exact(image.channels)) {
+            for c in 0..3 {
+                acc[c] += px[c.min(image.channels - 1)] as f64;
+            }
+        }
+    }
+
+    /// The pixel means of the camera samples (or added images), without the splats.
+    pub fn mean_image(&self) -> ImageBuf {
+        let zero = vec![[0.0; 3]; self.splats.len()];
+        self.resolve(&self.sums, &zero)
+    }
+
+    /// The splat sums as they are, before `splat_scale`.
+    pub fn splat_sum_image(&self) -> ImageBuf {
+        let mut img = ImageBuf::new(self.width, self.height, 3);
+        for (px, s) in img.data.chunks_exact_mut(3).zip(&self.splats) {
+            for c in 0..3 {
+                px[c] = s[c] as f32;
+            }
+        }
+        img
+    }
+
+    /// The sample count every pixel has, when all have the same (the render loop keeps whole passes
+    /// only, so a pixel integrator's film always does); `None` for a film mixed otherwise.
+    pub fn uniform_count(&self) -> Option<u64> {
+        let first = *self.counts.first()?;
+        self.counts.iter().all(|&c| c == first).then_some(first)
     }
 
     /// Adds a value to pixel (x, y) of a layer, as part of that pixel's camera samples.

@@ -2,7 +2,7 @@
 //! it: a pixel integrator estimates the measurement of one camera sample (pbrt-v4's separation of
 //! integrators from the loop that drives them); a full `Integrator` (Metropolis chains) runs its own loop.
 
-use super::{Film, RenderOptions, RenderStats, Splat};
+use super::{Film, RenderOptions, RenderStats, Splat, Work};
 use crate::geometry::Ray;
 use crate::sampling::Sampler;
 use crate::scene::Scene;
@@ -69,6 +69,8 @@ pub struct RenderOutput {
     pub stats: RenderStats,
     /// Integrator-specific statistics for the output's metadata (e.g. Metropolis acceptance rates).
     pub metadata: Vec<(String, String)>,
+    /// The work behind the film, for merging it with other renders (`RenderState`).
+    pub work: Work,
 }
 
 /// Any rendering technique: pixel integrators run in the shared tile loop, Metropolis methods run
@@ -89,7 +91,8 @@ impl Integrator for TiledRenderer {
 
     fn render(&self, scene: &Scene, options: &RenderOptions, cancel: &AtomicBool) -> RenderOutput {
         let (film, stats) = super::render(scene, self.0.as_ref(), options, cancel);
-        RenderOutput { film, stats, metadata: Vec::new() }
+        let work = Work::Pixels { spp: stats.min_spp as u64 };
+        RenderOutput { film, stats, metadata: Vec::new(), work }
     }
 }
 

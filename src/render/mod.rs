@@ -6,11 +6,13 @@
 
 mod film;
 mod integrator;
+mod state;
 
 pub use film::{Film, Splat};
 pub use integrator::{
     DepthLimits, Integrator, PixelIntegrator, RenderOutput, SampleCounters, SampleOutput, TiledRenderer,
 };
+pub use state::{RenderState, Work, MEAN_LAYER, SPLAT_LAYER};
 
 use crate::image::ImageBuf;
 use crate::sampling::Sampler;
@@ -41,6 +43,53 @@ pub struct RenderOptions {
     /// N + M spp. Integrators without per-pixel sample indices (Metropolis chains) must still make
     /// runs with different offsets statistically independent, e.g. by mixing it into their seeds.
     pub first_sample: u32,
+    /// The share of the work this run does (`hslt render --part K/N`): pixel integrators take their
+    /// share of each pixel's sample indices (of a time-limited render: streams of their own), the
+    /// Metropolis ones their share of seed samples, chains and mutations, so the shares together are
+    /// one render (`render::merge`).
+    pub share: Share,
+    /// Mutations an earlier run of this render already did: a resumed Metropolis render with a fixed
+    /// amount of work (`spp`) runs only the rest.
+    pub mutations_done: u64,
+}
+
+/// The K-th of N disjoint shares of a render's work (0-based here; the CLI counts from 1).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Share {
+    pub index: u32,
+    pub count: u32,
+}
+
+impl Default for Share {
+    fn default() -> Share {
+        Share::WHOLE
+    }
+}
+
+impl Share {
+    pub const WHOLE: Share = Share { index: 0, count: 1 };
+
+    pub fn is_whole(self) -> bool {
+        self.count <= 1
+    }
+
+    /// This share's part of the indices `0..n`: consecutive, and the shares of one `count` tile `0..n`.
+    pub fn range(self, n: u64) -> std::ops::Range<u64> {
+        let count = self.count.max(1) as u128;
+        let at = |k: u128| (n as u128 * k / count) as u64;
+        at(self.index as u128)..at(self.index as u128 + 1)
+    }
+
+    /// A seed for this share's own random streams, where the work cannot be split by index (a time
+    /// limit leaves the number of samples open); the whole render keeps `seed` itself.
+    pub fn stream_seed(self, seed: u64) -> u64 {
+        if self.is_whole() {
+            seed
+        } else {
+            seed ^ (0x5AA7_E000_0000_0000 | (self.index as u64) << 16 | self.count as u64)
+                .wrapping_mul(0x9E37_79B9_7F4A_7C15)
+        }
+    }
 }
 
 /// The state of a render at one moment, handed to a [`SnapshotHook`].
@@ -56,6 +105,9 @@ pub struct Snapshot {
     pub spp: u32,
     /// Integrator-specific statistics, e.g. `("acceptance_rate", "0.41")` (a number in [0, 1]).
     pub extra: Vec<(String, String)>,
+    /// The film and its work, when the hook asks for them (`SnapshotHook::with_state`): what a
+    /// checkpoint saves.
+    pub state: Option<RenderState>,
 }
 
 /// Asks an integrator for snapshots of its image at given wall times.
@@ -74,6 +126,15 @@ pub struct Snapshot {
 pub struct SnapshotHook {
     pub times: Vec<Duration>,
     pub sink: Arc<dyn Fn(&Snapshot) + Send + Sync>,
+    /// Whether snapshots carry a copy of the film (`Snapshot::state`), which costs a copy of it.
+    pub with_state: bool,
+}
+
+impl SnapshotHook {
+    /// Snapshots of the image alone at `times`.
+    pub fn images(times: Vec<Duration>, sink: impl Fn(&Snapshot) + Send + Sync + 'static) -> SnapshotHook {
+        SnapshotHook { times, sink: Arc::new(sink), with_state: false }
+    }
 }
 
 impl std::fmt::Debug for SnapshotHook {
@@ -92,6 +153,11 @@ pub struct SnapshotClock<'a> {
 impl<'a> SnapshotClock<'a> {
     pub fn new(options: &'a RenderOptions) -> SnapshotClock<'a> {
         SnapshotClock { hook: options.snapshots.as_ref(), next: 0 }
+    }
+
+    /// Whether the snapshots should carry the film (`Snapshot::state`).
+    pub fn wants_state(&self) -> bool {
+        self.hook.is_some_and(|h| h.with_state)
     }
 
     /// The next requested time not yet served, so loops can end a unit of work close to it.
@@ -153,6 +219,15 @@ pub fn render(
         (None, Some(_)) => None,
         (None, None) => Some(scene.spp.max(1)),
     };
+    // A share of the render takes its part of every pixel's sample indices; a time-limited share,
+    // whose sample count is open, streams of its own.
+    let (share_first, target, seed) = match target {
+        Some(t) => {
+            let r = options.share.range(t as u64);
+            (r.start as u32, Some((r.end - r.start) as u32), options.seed)
+        }
+        None => (0, None, options.share.stream_seed(options.seed)),
+    };
     let progress = make_progress(options, target, width * height);
     let mut stats = RenderStats::default();
     let invalid = AtomicU64::new(0);
@@ -181,14 +256,14 @@ pub fn render(
         }
         let pass_start = Instant::now();
         let pass_first = done_spp;
-        let first_sample = options.first_sample.saturating_add(done_spp);
+        let first_sample = options.first_sample.saturating_add(share_first).saturating_add(done_spp);
         let results: Vec<Option<TileResult>> = tiles
             .par_iter()
             .map(|tile| {
                 if cancel.load(Ordering::Relaxed) {
                     return None;
                 }
-                let r = render_tile(scene, integrator, options.seed, tile, first_sample, pass_size, width);
+                let r = render_tile(scene, integrator, seed, tile, first_sample, pass_size, width);
                 invalid.fetch_add(r.invalid, Ordering::Relaxed);
                 rays.fetch_add(r.counters.rays, Ordering::Relaxed);
                 shadow_rays.fetch_add(r.counters.shadow_rays, Ordering::Relaxed);
@@ -201,9 +276,12 @@ pub fn render(
             })
             .collect();
         let complete = results.iter().all(Option::is_some);
-        // A partial pass is kept for pixel estimates (each pixel is its own mean), but not when samples
-        // splat: light paths of the missing tiles would be missing from every pixel's splat sum.
-        if complete || !splats {
+        // A partial pass is dropped: with splats the light paths of the missing tiles would be missing
+        // from every pixel's splat sum, and without, its pixels would hold samples past `min_spp`
+        // that a resumed render (`first_sample = min_spp`) takes again. Every pixel has exactly
+        // `min_spp` samples, which merging parts and checkpoints relies on; a pass is about half a
+        // second of work.
+        if complete {
             for (tile, r) in tiles.iter().zip(results) {
                 let Some(r) = r else { continue };
                 film.add_tile((tile.x, tile.y, tile.w, tile.h), &r.sums, &r.squares, pass_size);
@@ -222,6 +300,7 @@ pub fn render(
         }
         done_spp += pass_size;
         stats.passes += 1;
+        let wants_state = snapshot_clock.wants_state();
         snapshot_clock.poll(start.elapsed(), || {
             film.splat_scale = 1.0 / done_spp as f64;
             Snapshot {
@@ -230,6 +309,8 @@ pub fn render(
                 samples: stats.samples,
                 spp: done_spp,
                 extra: Vec::new(),
+                state: wants_state
+                    .then(|| RenderState::new(film.clone(), Work::Pixels { spp: done_spp as u64 })),
             }
         });
         if let (Some(pb), None, Some(limit)) = (&progress, target, options.time_limit) {
