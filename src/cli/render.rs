@@ -216,10 +216,11 @@ pub(super) fn run_render(args: RenderArgs) -> anyhow::Result<i32> {
         if keeps_state { Some(farm::scene_hash(&scene_args.scene, &args.define)?) } else { None };
     let earlier = match &resumed {
         Some(c) => {
+            let state = c.state(scene_hash.as_deref().unwrap_or_default(), scene.film.rfilter)?;
             if c.complete {
                 bail!("{}: this render is complete; its image is in the checkpoint", c.path.display());
             }
-            Some(c.state(scene_hash.as_deref().unwrap_or_default(), scene.film.rfilter)?)
+            Some(state)
         }
         None => None,
     };
