@@ -215,13 +215,7 @@ pub(super) fn run_render(args: RenderArgs) -> anyhow::Result<i32> {
     let scene_hash =
         if keeps_state { Some(farm::scene_hash(&scene_args.scene, &args.define)?) } else { None };
     let earlier = match &resumed {
-        Some(c) => {
-            let state = c.state(scene_hash.as_deref().unwrap_or_default(), scene.film.rfilter)?;
-            if c.complete {
-                bail!("{}: this render is complete; its image is in the checkpoint", c.path.display());
-            }
-            Some(state)
-        }
+        Some(c) => Some(c.state(scene_hash.as_deref().unwrap_or_default(), scene.film.rfilter)?),
         None => None,
     };
     let kind_name = args.integrator.clone().unwrap_or_else(|| scene.integrator.kind.clone());
@@ -313,6 +307,8 @@ pub(super) fn run_render(args: RenderArgs) -> anyhow::Result<i32> {
     let integrator = registry::make_with(kind, &settings);
     // What this run renders: all of it, or the rest of a resumed render (`None`: nothing is left).
     let segment = match (&resumed, &earlier) {
+        // A complete render resumed again only writes its outputs (a requeued farm task, say).
+        (Some(c), Some(_)) if c.complete => None,
         (Some(c), Some(state)) => continued_options(&options, state, c, &scene),
         _ => Some(options.clone()),
     };
