@@ -157,9 +157,10 @@ impl Checkpoint {
         let cli = Cli::try_parse_from(argv).map_err(|e| {
             anyhow!("{}: its recorded command line no longer parses: {}", self.path.display(), e.render())
         })?;
-        let Command::Render(mut args) = cli.command else {
+        let Command::Render(args) = cli.command else {
             bail!("{}: its recorded command line is not `hslt render`", self.path.display());
         };
+        let mut args = *args;
         args.scene = Some(self.scene.clone());
         args.output = now.output.clone();
         args.threads = now.threads;

@@ -49,7 +49,7 @@ pub struct Cli {
 #[derive(Subcommand, Debug)]
 pub enum Command {
     /// Render a Mitsuba XML scene to one or more images.
-    Render(RenderArgs),
+    Render(Box<RenderArgs>),
     /// Describe a scene: geometry, materials, lights, textures and which renderer features it needs.
     Info(SceneArgs),
     /// Benchmarks: `bench pt SCENE` (path tracer) or `bench rays SCENE` (Embree vs the Rust BVH).
@@ -192,7 +192,7 @@ impl MemoryArgs {
 
 pub fn run(cli: Cli) -> anyhow::Result<i32> {
     match cli.command {
-        Command::Render(args) => render::run_render(args),
+        Command::Render(args) => render::run_render(*args),
         Command::Info(args) => info::run_info(args),
         Command::Bench(BenchCommand::Pt(args)) => bench::run_bench(args),
         Command::Bench(BenchCommand::Rays(args)) => bench::run_bench_rays(args),
