@@ -5,12 +5,15 @@
 
 use super::{Cli, Command, RenderArgs};
 use crate::image::{read_exr_metadata, write_exr_layers, write_image, ImageBuf, Metadata};
-use crate::render::{RenderState, Share, Work};
+use crate::registry::{IntegratorKind, IntegratorSettings};
+use crate::render::{RenderOptions, RenderOutput, RenderState, RenderStats, Share, Work};
+use crate::scene::Scene;
 use crate::sensor::ReconstructionFilter;
 use anyhow::{anyhow, bail, Context};
 use clap::{Args, Parser};
 use sha2::{Digest, Sha256};
 use std::path::{Path, PathBuf};
+use std::time::Duration;
 
 /// Metadata keys of parts and checkpoints.
 pub const PART_COUNT: &str = "hslt.part.count";
@@ -344,4 +347,143 @@ pub fn run_merge(args: MergeArgs) -> anyhow::Result<i32> {
         }
     }
     Ok(0)
+}
+
+/// Refuses a part that would get no work: a pixel integrator's share of fewer samples per pixel than
+/// parts, or a Metropolis render split into more parts than it has chains.
+pub(super) fn check_part(
+    kind: IntegratorKind,
+    share: Share,
+    options: &RenderOptions,
+    settings: &IntegratorSettings,
+) -> anyhow::Result<()> {
+    let n = share.count as u64;
+    match kind {
+        IntegratorKind::Path | IntegratorKind::Bdpt => {
+            if let Some(spp) = options.spp.filter(|&spp| (spp as u64) < n) {
+                bail!("--part K/{n}: {spp} samples per pixel cannot be split into {n} parts (use --spp {n} or more)");
+            }
+        }
+        _ => {
+            let chains = match kind {
+                IntegratorKind::Pssmlt => settings.pssmlt.chains,
+                _ => settings.path_chains.unwrap_or(crate::metropolis::mlt::DEFAULT_PATH_CHAINS),
+            };
+            if (chains as u64) < n {
+                bail!(
+                    "--part K/{n}: {chains} chains cannot be split into {n} parts (use --chains {n} or more)"
+                );
+            }
+        }
+    }
+    Ok(())
+}
+
+/// The options of a run that continues `state`, the work a checkpoint recorded, towards what
+/// `options` asked for in all; `None` when nothing is left. A pixel integrator takes the sample
+/// indices after those already taken, so the two runs are exactly one; a Metropolis one starts new
+/// chains on streams of their own (the segment number is mixed into its seeds).
+pub(super) fn continued_options(
+    options: &RenderOptions,
+    state: &RenderState,
+    checkpoint: &Checkpoint,
+    scene: &Scene,
+) -> Option<RenderOptions> {
+    let mut run = options.clone();
+    if let Some(limit) = options.time_limit {
+        let left = limit.as_secs_f64() - checkpoint.elapsed;
+        if left <= 0.0 {
+            return None;
+        }
+        run.time_limit = Some(Duration::from_secs_f64(left));
+    }
+    match state.work {
+        Work::Pixels { spp: done } => {
+            run.share = Share::WHOLE;
+            match options.spp {
+                Some(spp) => {
+                    let mine = options.share.range(spp as u64);
+                    let left = (mine.end - mine.start).checked_sub(done).filter(|&n| n > 0)?;
+                    run.first_sample = (mine.start + done) as u32;
+                    run.spp = Some(left as u32);
+                }
+                None => {
+                    run.seed = options.share.stream_seed(options.seed);
+                    run.first_sample = done as u32;
+                }
+            }
+        }
+        Work::Chains { mutations, .. } => {
+            run.first_sample = checkpoint.segments.max(1);
+            run.mutations_done = mutations;
+            if options.spp.is_some() && crate::metropolis::driver::total_mutations(&run, scene) == 0 {
+                return None;
+            }
+        }
+    }
+    Some(run)
+}
+
+/// The output of a run that had nothing left to do.
+pub(super) fn nothing_left(scene: &Scene, earlier: Option<&RenderState>) -> RenderOutput {
+    let work = match earlier.map(|e| e.work) {
+        Some(Work::Chains { .. }) => Work::Chains { mutations: 0, b_sum: 0.0, b_samples: 0 },
+        _ => Work::Pixels { spp: 0 },
+    };
+    let film = crate::render::Film::with_filter(scene.film.width, scene.film.height, scene.film.rfilter);
+    RenderOutput { film, stats: RenderStats::default(), metadata: Vec::new(), work }
+}
+
+/// Writes checkpoints of one render: the earlier runs' state (when resumed) with this run's so far.
+#[derive(Clone)]
+pub(super) struct CheckpointWriter {
+    pub path: PathBuf,
+    pub earlier: Option<RenderState>,
+    /// The render's metadata without its work (which comes from the state at each write).
+    pub meta: Metadata,
+    pub command_line: Vec<String>,
+    pub scene: PathBuf,
+    pub elapsed_before: f64,
+    pub segments: u32,
+}
+
+impl CheckpointWriter {
+    /// Writes `now` (added to the earlier runs' state) after `elapsed` seconds of this run; `extra`
+    /// replaces metadata fields (the final write passes the render's whole metadata).
+    pub fn write(
+        &self,
+        now: &RenderState,
+        elapsed: f64,
+        complete: bool,
+        extra: &Metadata,
+    ) -> anyhow::Result<()> {
+        let mut state = now.clone();
+        if let Some(e) = &self.earlier {
+            let mut total = e.clone();
+            total.absorb(now).map_err(|err| anyhow!("{err}"))?;
+            state = total;
+        }
+        let pixels = (state.film.width * state.film.height).max(1) as u64;
+        let (spp, samples) = match state.work {
+            Work::Pixels { spp } => (spp, spp * pixels),
+            Work::Chains { mutations, .. } => (mutations / pixels, mutations),
+        };
+        let total_elapsed = self.elapsed_before + elapsed;
+        let mut meta = self.meta.clone();
+        set_fields(&mut meta, extra.clone());
+        set_fields(
+            &mut meta,
+            vec![
+                ("hslt.spp".into(), spp.to_string()),
+                ("hslt.samples".into(), samples.to_string()),
+                ("hslt.elapsed_seconds".into(), format!("{total_elapsed:.3}")),
+                ("hslt.interrupted".into(), (!complete).to_string()),
+            ],
+        );
+        set_fields(
+            &mut meta,
+            checkpoint_fields(&self.command_line, &self.scene, total_elapsed, self.segments, complete),
+        );
+        write_state(&self.path, &state, &meta)
+    }
 }

@@ -14,6 +14,7 @@ mod reference;
 mod render;
 mod stability;
 pub mod stats_json;
+mod summary;
 mod tev;
 
 pub use bench::{BenchArgs, BenchCommand, BenchHsltArgs, BenchIntegratorsArgs, BenchRaysArgs};

@@ -13,9 +13,8 @@ use crate::integrators::aov::{Aov, AovPass};
 use crate::metropolis::direct::DirectPass;
 use crate::metropolis::MutationKind;
 use crate::path::MisHeuristic;
-use crate::registry::IntegratorSettings;
 use crate::registry::{self, IntegratorKind};
-use crate::render::{DepthLimits, RenderOptions, RenderOutput, RenderState, RenderStats, Share, Work};
+use crate::render::{DepthLimits, RenderOptions, RenderState, RenderStats, Work};
 use crate::render::{Snapshot, SnapshotHook};
 use crate::scene::Scene;
 use anyhow::{anyhow, bail, Context};
@@ -302,14 +301,14 @@ pub(super) fn run_render(args: RenderArgs) -> anyhow::Result<i32> {
         ..Default::default()
     };
     if let Some(share) = args.part {
-        check_part(kind, share, &options, &settings)?;
+        farm::check_part(kind, share, &options, &settings)?;
     }
     let integrator = registry::make_with(kind, &settings);
     // What this run renders: all of it, or the rest of a resumed render (`None`: nothing is left).
     let segment = match (&resumed, &earlier) {
         // A complete render resumed again only writes its outputs (a requeued farm task, say).
         (Some(c), Some(_)) if c.complete => None,
-        (Some(c), Some(state)) => continued_options(&options, state, c, &scene),
+        (Some(c), Some(state)) => farm::continued_options(&options, state, c, &scene),
         _ => Some(options.clone()),
     };
     let mut run_options =
@@ -331,7 +330,7 @@ pub(super) fn run_render(args: RenderArgs) -> anyhow::Result<i32> {
     }
     let writer = args.checkpoint.clone().map(|path| {
         let base = metadata(&scene, kind.name(), &options, limits, 0, &RenderStats::default());
-        Arc::new(CheckpointWriter {
+        Arc::new(farm::CheckpointWriter {
             path,
             earlier: earlier.clone(),
             meta: base.into_iter().chain(state_fields.iter().cloned()).collect(),
@@ -396,7 +395,7 @@ pub(super) fn run_render(args: RenderArgs) -> anyhow::Result<i32> {
         }
         let result = args.memory.watch(|| match &segment {
             Some(_) => pool.install(|| integrator.render(&scene, &run_options, &CANCEL)),
-            None => nothing_left(&scene, earlier.as_ref()),
+            None => farm::nothing_left(&scene, earlier.as_ref()),
         });
         // Dropping the hook drops the last sender, which ends the viewer's loop.
         run_options.snapshots = None;
@@ -470,7 +469,7 @@ pub(super) fn run_render(args: RenderArgs) -> anyhow::Result<i32> {
     if let Some(w) = &writer {
         let complete = !stats.interrupted && over_memory.is_none();
         // The final state replaces the checkpoint whole: written from the total, not added to it.
-        let earlier_free = CheckpointWriter { earlier: None, elapsed_before: 0.0, ..(**w).clone() };
+        let earlier_free = farm::CheckpointWriter { earlier: None, elapsed_before: 0.0, ..(**w).clone() };
         earlier_free
             .write(&state, stats.elapsed.as_secs_f64(), complete, &meta)
             .with_context(|| format!("cannot write the checkpoint {}", w.path.display()))?;
@@ -487,8 +486,8 @@ pub(super) fn run_render(args: RenderArgs) -> anyhow::Result<i32> {
         if segment.is_none() {
             eprintln!("nothing left to render: the checkpoint holds all the work asked for");
         }
-        print_summary(&args.output, &stats, threads);
-        print_metropolis_summary(&meta);
+        super::summary::print_summary(&args.output, &stats, threads);
+        super::summary::print_metropolis_summary(&meta);
     }
     if let Some(path) = &args.stats_json {
         let text = serde_json::to_string_pretty(&super::stats_json::stats_document(&meta))? + "\n";
@@ -566,214 +565,4 @@ fn process_metadata(scene: &Scene, stats: &RenderStats) -> Metadata {
         meta.push(("hslt.peak_memory_bytes".into(), peak.to_string()));
     }
     meta
-}
-
-fn print_summary(outputs: &[PathBuf], stats: &RenderStats, threads: usize) {
-    let secs = stats.elapsed.as_secs_f64().max(1e-9);
-    eprintln!(
-        "{} spp in {:.2} s on {} threads: {:.3} M samples/s, {:.2} M rays/s{}{}",
-        stats.min_spp,
-        secs,
-        threads,
-        stats.samples as f64 / secs * 1e-6,
-        stats.rays as f64 / secs * 1e-6,
-        if stats.invalid_samples > 0 {
-            format!(", {} NaN/Inf samples dropped", stats.invalid_samples)
-        } else {
-            String::new()
-        },
-        if stats.interrupted { " (interrupted)" } else { "" },
-    );
-    for o in outputs {
-        eprintln!("wrote {}", o.display());
-    }
-}
-
-/// Metropolis statistics (acceptance per mutation) and warnings such as an all-black seeding pass.
-fn print_metropolis_summary(meta: &Metadata) {
-    let get = |key: &str| meta.iter().find(|(k, _)| k == key).map(|(_, v)| v.as_str());
-    if let Some(status) = get("hslt.mlt.status") {
-        eprintln!("warning: {status}");
-    }
-    if let (Some(m), Some(a)) = (get("hslt.mlt.mutations"), get("hslt.mlt.acceptance")) {
-        eprintln!("{m} mutations, acceptance {a}");
-        if let (Some(stuck), Some(chains), Some(longest), Some(share)) = (
-            get("hslt.mlt.chains_stuck"),
-            get("hslt.mlt.chains"),
-            get("hslt.mlt.longest_rejection_streak"),
-            get("hslt.mlt.stuck_share"),
-        ) {
-            eprintln!(
-                "chains stuck ({} or more rejections in a row): {stuck} of {chains}; longest run {longest}; \
-                 share of mutations in such runs {share}",
-                crate::metropolis::chain::STUCK_STREAK
-            );
-        }
-        for (k, v) in meta {
-            let Some(name) = k.strip_prefix("hslt.mlt.").and_then(|r| r.strip_suffix(".acceptance")) else {
-                continue;
-            };
-            let field = |what: &str| get(&format!("hslt.mlt.{name}.{what}")).unwrap_or("0").to_string();
-            let cost = get(&format!("hslt.mlt.{name}.microseconds_per_proposal"))
-                .map(|us| format!(", {us} µs each"))
-                .unwrap_or_default();
-            let mut line = format!(
-                "  {name}: {} proposed, acceptance {v}{cost}, {} zero-contribution, {} not applicable",
-                field("proposed"),
-                field("rejected_zero"),
-                field("not_applicable")
-            );
-            let prefix = format!("hslt.mlt.{name}.");
-            let detail = |part: &str| -> Vec<String> {
-                meta.iter()
-                    .filter_map(|(key, value)| {
-                        let rest = key.strip_prefix(&prefix)?.strip_prefix(part)?;
-                        Some(format!("{rest} {value}"))
-                    })
-                    .collect()
-            };
-            let failed = detail("failed.");
-            if !failed.is_empty() {
-                line += &format!("; failed: {}", failed.join(", "));
-            }
-            let means = detail("mean.");
-            if !means.is_empty() {
-                line += &format!("; mean {}", means.join(", "));
-            }
-            eprintln!("{line}");
-        }
-    }
-}
-
-/// Refuses a part that would get no work: a pixel integrator's share of fewer samples per pixel than
-/// parts, or a Metropolis render split into more parts than it has chains.
-fn check_part(
-    kind: IntegratorKind,
-    share: Share,
-    options: &RenderOptions,
-    settings: &IntegratorSettings,
-) -> anyhow::Result<()> {
-    let n = share.count as u64;
-    match kind {
-        IntegratorKind::Path | IntegratorKind::Bdpt => {
-            if let Some(spp) = options.spp.filter(|&spp| (spp as u64) < n) {
-                bail!("--part K/{n}: {spp} samples per pixel cannot be split into {n} parts (use --spp {n} or more)");
-            }
-        }
-        _ => {
-            let chains = match kind {
-                IntegratorKind::Pssmlt => settings.pssmlt.chains,
-                _ => settings.path_chains.unwrap_or(crate::metropolis::mlt::DEFAULT_PATH_CHAINS),
-            };
-            if (chains as u64) < n {
-                bail!(
-                    "--part K/{n}: {chains} chains cannot be split into {n} parts (use --chains {n} or more)"
-                );
-            }
-        }
-    }
-    Ok(())
-}
-
-/// The options of a run that continues `state`, the work a checkpoint recorded, towards what
-/// `options` asked for in all; `None` when nothing is left. A pixel integrator takes the sample
-/// indices after those already taken, so the two runs are exactly one; a Metropolis one starts new
-/// chains on streams of their own (the segment number is mixed into its seeds).
-fn continued_options(
-    options: &RenderOptions,
-    state: &RenderState,
-    checkpoint: &Checkpoint,
-    scene: &Scene,
-) -> Option<RenderOptions> {
-    let mut run = options.clone();
-    if let Some(limit) = options.time_limit {
-        let left = limit.as_secs_f64() - checkpoint.elapsed;
-        if left <= 0.0 {
-            return None;
-        }
-        run.time_limit = Some(Duration::from_secs_f64(left));
-    }
-    match state.work {
-        Work::Pixels { spp: done } => {
-            run.share = Share::WHOLE;
-            match options.spp {
-                Some(spp) => {
-                    let mine = options.share.range(spp as u64);
-                    let left = (mine.end - mine.start).checked_sub(done).filter(|&n| n > 0)?;
-                    run.first_sample = (mine.start + done) as u32;
-                    run.spp = Some(left as u32);
-                }
-                None => {
-                    run.seed = options.share.stream_seed(options.seed);
-                    run.first_sample = done as u32;
-                }
-            }
-        }
-        Work::Chains { mutations, .. } => {
-            run.first_sample = checkpoint.segments.max(1);
-            run.mutations_done = mutations;
-            if options.spp.is_some() && crate::metropolis::driver::total_mutations(&run, scene) == 0 {
-                return None;
-            }
-        }
-    }
-    Some(run)
-}
-
-/// The output of a run that had nothing left to do.
-fn nothing_left(scene: &Scene, earlier: Option<&RenderState>) -> RenderOutput {
-    let work = match earlier.map(|e| e.work) {
-        Some(Work::Chains { .. }) => Work::Chains { mutations: 0, b_sum: 0.0, b_samples: 0 },
-        _ => Work::Pixels { spp: 0 },
-    };
-    let film = crate::render::Film::with_filter(scene.film.width, scene.film.height, scene.film.rfilter);
-    RenderOutput { film, stats: RenderStats::default(), metadata: Vec::new(), work }
-}
-
-/// Writes checkpoints of one render: the earlier runs' state (when resumed) with this run's so far.
-#[derive(Clone)]
-struct CheckpointWriter {
-    path: PathBuf,
-    earlier: Option<RenderState>,
-    /// The render's metadata without its work (which comes from the state at each write).
-    meta: Metadata,
-    command_line: Vec<String>,
-    scene: PathBuf,
-    elapsed_before: f64,
-    segments: u32,
-}
-
-impl CheckpointWriter {
-    /// Writes `now` (added to the earlier runs' state) after `elapsed` seconds of this run; `extra`
-    /// replaces metadata fields (the final write passes the render's whole metadata).
-    fn write(&self, now: &RenderState, elapsed: f64, complete: bool, extra: &Metadata) -> anyhow::Result<()> {
-        let mut state = now.clone();
-        if let Some(e) = &self.earlier {
-            let mut total = e.clone();
-            total.absorb(now).map_err(|err| anyhow!("{err}"))?;
-            state = total;
-        }
-        let pixels = (state.film.width * state.film.height).max(1) as u64;
-        let (spp, samples) = match state.work {
-            Work::Pixels { spp } => (spp, spp * pixels),
-            Work::Chains { mutations, .. } => (mutations / pixels, mutations),
-        };
-        let total_elapsed = self.elapsed_before + elapsed;
-        let mut meta = self.meta.clone();
-        farm::set_fields(&mut meta, extra.clone());
-        farm::set_fields(
-            &mut meta,
-            vec![
-                ("hslt.spp".into(), spp.to_string()),
-                ("hslt.samples".into(), samples.to_string()),
-                ("hslt.elapsed_seconds".into(), format!("{total_elapsed:.3}")),
-                ("hslt.interrupted".into(), (!complete).to_string()),
-            ],
-        );
-        farm::set_fields(
-            &mut meta,
-            farm::checkpoint_fields(&self.command_line, &self.scene, total_elapsed, self.segments, complete),
-        );
-        farm::write_state(&self.path, &state, &meta)
-    }
 }
