@@ -223,6 +223,12 @@ fn pt_stopped_by_sigterm_and_resumed_equals_the_uninterrupted_render() {
         .output()
         .unwrap();
     assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("--spp"));
+    let o = hslt()
+        .args(["render", "--resume", path(&checkpoint), "--chains", "4", "-o", path(&resumed)])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && err.contains("takes the render's options from"), "{err}");
     run(&["render", "--resume", path(&checkpoint), "-o", path(&resumed), "-q"]);
     assert_eq!(meta(&resumed, "hslt.spp").as_deref(), Some("1500"));
     let err = rel_mse(&resumed, &full);

@@ -156,6 +156,20 @@ impl Checkpoint {
     /// The original render's arguments, with this invocation's outputs and run options (threads,
     /// progress, memory cap, live view, checkpoint file and interval) in place of the original's.
     pub fn render_args(&self, now: &RenderArgs) -> anyhow::Result<RenderArgs> {
+        // Options that decide the image come from the checkpoint; given anew they would be ignored.
+        let bare =
+            Cli::try_parse_from(["hslt", "render", "--resume", "x.exr", "-o", "x.exr"]).ok().and_then(|c| {
+                match c.command {
+                    Command::Render(args) => Some(image_settings(&args)),
+                    _ => None,
+                }
+            });
+        if bare.is_some_and(|bare| bare != image_settings(now)) {
+            bail!(
+                "--resume takes the render's options from {}; give only outputs and run options (--threads, -q, --checkpoint, --max-memory, --tev, --stats-json)",
+                self.path.display()
+            );
+        }
         let argv = std::iter::once("hslt".to_string()).chain(self.args.iter().cloned());
         let cli = Cli::try_parse_from(argv).map_err(|e| {
             anyhow!("{}: its recorded command line no longer parses: {}", self.path.display(), e.render())
