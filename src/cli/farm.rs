@@ -314,7 +314,21 @@ pub fn run_merge(args: MergeArgs) -> anyhow::Result<i32> {
     let missing: Vec<String> =
         (1..=first.count).filter(|k| covered[*k as usize - 1].is_none()).map(|k| k.to_string()).collect();
     let mut meta = first.meta.clone();
-    meta.retain(|(k, _)| !k.starts_with("hslt.state.") && !k.starts_with("hslt.checkpoint."));
+    // One part's run statistics would pass for the merge's: drop them, and add up the counts.
+    const PER_RUN: [&str; 6] = [
+        "hslt.samples_per_second",
+        "hslt.cpu_seconds",
+        "hslt.peak_memory_bytes",
+        "hslt.threads",
+        "hslt.resumed_segments",
+        "hslt.part",
+    ];
+    meta.retain(|(k, _)| {
+        !k.starts_with("hslt.state.")
+            && !k.starts_with("hslt.checkpoint.")
+            && !k.starts_with("hslt.mlt.")
+            && !PER_RUN.contains(&k.as_str())
+    });
     let sum = |key: &str| -> u64 {
         parts.iter().filter_map(|p| super::lookup(&p.meta, key)?.parse::<u64>().ok()).sum()
     };
@@ -334,6 +348,10 @@ pub fn run_merge(args: MergeArgs) -> anyhow::Result<i32> {
             ("hslt.part".into(), format!("merge of {} of {}", covers.len(), first.count)),
             ("hslt.spp".into(), spp.to_string()),
             ("hslt.samples".into(), sum("hslt.samples").to_string()),
+            ("hslt.rays".into(), sum("hslt.rays").to_string()),
+            ("hslt.shadow_rays".into(), sum("hslt.shadow_rays").to_string()),
+            ("hslt.closest_hit_rays".into(), sum("hslt.closest_hit_rays").to_string()),
+            ("hslt.invalid_samples".into(), sum("hslt.invalid_samples").to_string()),
             ("hslt.elapsed_seconds".into(), format!("{seconds:.3}")),
             ("hslt.interrupted".into(), interrupted.to_string()),
         ],
