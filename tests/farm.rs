@@ -166,8 +166,20 @@ fn pssmlt_parts_merge_as_well_as_one_render_of_their_work() {
     assert!((m / r - 1.0).abs() < 0.02, "merged mean {m} against the reference's {r}");
 }
 
+/// The arguments of a 32×32 Cornell box render with `extra` options, checkpointed every `every`
+/// seconds to `checkpoint`, written to `out`.
+fn checkpointed(extra: &[&str], checkpoint: &Path, every: &str, out: &Path) -> Vec<String> {
+    let mut args: Vec<String> =
+        ["render", &cornell(), "-D", "resx=32", "-D", "resy=32", "-q"].map(String::from).to_vec();
+    args.extend(extra.iter().map(|a| a.to_string()));
+    for a in ["--checkpoint", path(checkpoint), "--checkpoint-every", every, "-o", path(out)] {
+        args.push(a.to_string());
+    }
+    args
+}
+
 /// Starts a render, waits until its checkpoint exists, then sends `signal`.
-fn interrupt_after_checkpoint(args: &[&str], checkpoint: &Path, signal: &str) -> Output {
+fn interrupt_after_checkpoint(args: &[String], checkpoint: &Path, signal: &str) -> Output {
     let child = hslt().args(args).stderr(std::process::Stdio::piped()).spawn().unwrap();
     let start = std::time::Instant::now();
     while !checkpoint.exists() {
@@ -184,32 +196,11 @@ fn interrupt_after_checkpoint(args: &[&str], checkpoint: &Path, signal: &str) ->
 #[test]
 fn pt_stopped_by_sigterm_and_resumed_equals_the_uninterrupted_render() {
     let dir = tmp_dir("pt-resume");
-    let scene = cornell();
     let full = dir.join("full.exr");
     render(&full, &["--spp", "1500", "--seed", "11", "--threads", "1"]);
     let (first, checkpoint, resumed) =
         (dir.join("first.exr"), dir.join("state.exr"), dir.join("resumed.exr"));
-    let args = [
-        "render",
-        &scene,
-        "-D",
-        "resx=32",
-        "-D",
-        "resy=32",
-        "--spp",
-        "1500",
-        "--seed",
-        "11",
-        "--threads",
-        "1",
-        "-q",
-        "--checkpoint",
-        path(&checkpoint),
-        "--checkpoint-every",
-        "0.5",
-        "-o",
-        path(&first),
-    ];
+    let args = checkpointed(&["--spp", "1500", "--seed", "11", "--threads", "1"], &checkpoint, "0.5", &first);
     let out = interrupt_after_checkpoint(&args, &checkpoint, "-TERM");
     assert_eq!(out.status.code(), Some(130), "SIGTERM ends the render as interrupted");
     assert_eq!(meta(&checkpoint, "hslt.checkpoint.complete").as_deref(), Some("false"));
@@ -245,34 +236,14 @@ fn pt_stopped_by_sigterm_and_resumed_equals_the_uninterrupted_render() {
 #[test]
 fn hslt_mlt_stopped_by_sigint_and_resumed_agrees_with_the_reference() {
     let dir = tmp_dir("hslt-resume");
-    let scene = cornell();
     let reference = dir.join("reference.exr");
     render(&reference, &["--integrator", "bdpt", "--spp", "1024", "--seed", "99"]);
     let whole = dir.join("whole.exr");
     render(&whole, &["--integrator", "hslt+mlt", "--time", "4", "--seed", "1"]);
     let (first, checkpoint, resumed) =
         (dir.join("first.exr"), dir.join("state.exr"), dir.join("resumed.exr"));
-    let args = [
-        "render",
-        &scene,
-        "-D",
-        "resx=32",
-        "-D",
-        "resy=32",
-        "--integrator",
-        "hslt+mlt",
-        "--time",
-        "4",
-        "--seed",
-        "1",
-        "-q",
-        "--checkpoint",
-        path(&checkpoint),
-        "--checkpoint-every",
-        "1",
-        "-o",
-        path(&first),
-    ];
+    let args =
+        checkpointed(&["--integrator", "hslt+mlt", "--time", "4", "--seed", "1"], &checkpoint, "1", &first);
     let out = interrupt_after_checkpoint(&args, &checkpoint, "-INT");
     assert_eq!(out.status.code(), Some(130));
     run(&["render", "--resume", path(&checkpoint), "-o", path(&resumed), "-q"]);
