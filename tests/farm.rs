@@ -34,6 +34,18 @@ fn path(p: &Path) -> &str {
     p.to_str().unwrap()
 }
 
+/// A BDPT render of the 32×32 Cornell box at 1024 spp, made once for the tests that need it.
+fn bdpt_reference() -> PathBuf {
+    static REFERENCE: std::sync::OnceLock<PathBuf> = std::sync::OnceLock::new();
+    REFERENCE
+        .get_or_init(|| {
+            let reference = tmp_dir("reference").join("reference.exr");
+            render(&reference, &["--integrator", "bdpt", "--spp", "1024", "--seed", "99"]);
+            reference
+        })
+        .clone()
+}
+
 fn rel_mse(img: &Path, reference: &Path) -> f64 {
     let (a, b) = (read_image(img, false).unwrap(), read_image(reference, false).unwrap());
     metrics::compute(&a, &b, 1e-2).unwrap().rel_mse
@@ -144,8 +156,7 @@ fn merge_refuses_parts_of_different_renders_and_a_part_twice() {
 #[test]
 fn pssmlt_parts_merge_as_well_as_one_render_of_their_work() {
     let dir = tmp_dir("pssmlt-parts");
-    let reference = dir.join("reference.exr");
-    render(&reference, &["--integrator", "bdpt", "--spp", "1024", "--seed", "99"]);
+    let reference = bdpt_reference();
     let single = dir.join("single.exr");
     render(&single, &["--integrator", "pssmlt", "--spp", "128", "--seed", "2"]);
     let (a, b) = (dir.join("a.exr"), dir.join("b.exr"));
@@ -236,8 +247,7 @@ fn pt_stopped_by_sigterm_and_resumed_equals_the_uninterrupted_render() {
 #[test]
 fn hslt_mlt_stopped_by_sigint_and_resumed_agrees_with_the_reference() {
     let dir = tmp_dir("hslt-resume");
-    let reference = dir.join("reference.exr");
-    render(&reference, &["--integrator", "bdpt", "--spp", "1024", "--seed", "99"]);
+    let reference = bdpt_reference();
     let whole = dir.join("whole.exr");
     render(&whole, &["--integrator", "hslt+mlt", "--time", "4", "--seed", "1"]);
     let (first, checkpoint, resumed) =
