@@ -269,35 +269,48 @@ fn hslt_mlt_stopped_by_sigint_and_resumed_agrees_with_the_reference() {
 }
 
 #[test]
-fn resume_refuses_a_changed_scene() {
+fn resume_refuses_a_changed_scene_file_or_mesh() {
     let dir = tmp_dir("changed");
-    let scene_dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/cornell-box");
-    let scene = dir.join("scene.xml");
-    let text = std::fs::read_to_string(scene_dir.join("scene.xml")).unwrap();
-    // Meshes and the like resolve next to the scene file; this scene has none outside the XML.
-    std::fs::write(&scene, &text).unwrap();
-    let checkpoint = dir.join("state.exr");
-    run(&[
+    let source = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/jewelry");
+    std::fs::create_dir_all(dir.join("meshes")).unwrap();
+    for file in ["scene.xml", "meshes/gem.obj", "meshes/ring.obj"] {
+        std::fs::copy(source.join(file), dir.join(file)).unwrap();
+    }
+    let (scene, checkpoint, first) = (dir.join("scene.xml"), dir.join("state.exr"), dir.join("a.exr"));
+    let resume = || {
+        let o =
+            hslt().args(["render", "--resume", path(&checkpoint), "-o", path(&dir.join("b.exr"))]).output();
+        let o = o.unwrap();
+        (o.status.success(), String::from_utf8_lossy(&o.stderr).into_owned())
+    };
+    let start = [
         "render",
         path(&scene),
         "-D",
         "resx=16",
         "-D",
-        "resy=16",
+        "resy=12",
         "--spp",
         "2",
         "-q",
         "--checkpoint",
         path(&checkpoint),
         "-o",
-        path(&dir.join("a.exr")),
-    ]);
-    std::fs::write(&scene, text.replace("</scene>", "<!-- edited -->\n</scene>")).unwrap();
-    let o = hslt()
-        .args(["render", "--resume", path(&checkpoint), "-o", path(&dir.join("b.exr"))])
-        .output()
-        .unwrap();
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert!(!o.status.success(), "resumed a changed scene: {err}");
-    assert!(err.contains("has changed"), "{err}");
+        path(&first),
+    ];
+    run(&start);
+    assert!(resume().0, "an unchanged scene resumes");
+
+    // A mesh the scene loads: one more comment line changes no geometry but is another file.
+    let mesh = dir.join("meshes/gem.obj");
+    let text = std::fs::read_to_string(&mesh).unwrap();
+    std::fs::write(&mesh, format!("{text}# edited\n")).unwrap();
+    let (ok, err) = resume();
+    assert!(!ok && err.contains("has changed"), "resumed with a changed mesh: {err}");
+
+    std::fs::write(&mesh, &text).unwrap();
+    let xml = std::fs::read_to_string(&scene).unwrap();
+    std::fs::write(&scene, xml.replace("</scene>", "<!-- edited -->\n</scene>")).unwrap();
+    let (ok, err) = resume();
+    assert!(!ok && err.contains("has changed"), "resumed a changed scene file: {err}");
 }

@@ -39,18 +39,30 @@ pub fn parse_part(s: &str) -> Result<Share, String> {
     Ok(Share { index: k - 1, count: n })
 }
 
-/// SHA-256 of the scene file and the `-D` values it is loaded with, so a merge or a resume refuses a
-/// render of another scene. Files the scene refers to (meshes, textures, includes) are not hashed.
+/// SHA-256 of what the scene's image depends on: the scene file, the `-D` values it is loaded with,
+/// and every file its loaders read (`<include>`d files, meshes, textures, environment maps; call
+/// after loading). Contents only, not paths, so farm nodes that mount the scene elsewhere agree.
 pub fn scene_hash(path: &Path, defines: &[(String, String)]) -> anyhow::Result<String> {
-    let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let digest = |file: &Path| -> anyhow::Result<Vec<u8>> {
+        let mut hash = Sha256::new();
+        let mut f = std::fs::File::open(file).with_context(|| format!("cannot read {}", file.display()))?;
+        std::io::copy(&mut f, &mut hash).with_context(|| format!("cannot read {}", file.display()))?;
+        Ok(hash.finalize().to_vec())
+    };
     let mut hash = Sha256::new();
-    hash.update((bytes.len() as u64).to_le_bytes());
-    hash.update(&bytes);
+    hash.update(digest(path)?);
     let mut defines = defines.to_vec();
     defines.sort();
     for (k, v) in &defines {
         hash.update(format!("{}={}\n", k.len(), k).as_bytes());
         hash.update(format!("{}={}\n", v.len(), v).as_bytes());
+    }
+    // Sorted by content, so the order the loaders happened to read them in does not matter.
+    let mut inputs =
+        crate::resources::input_files().iter().map(|f| digest(f)).collect::<anyhow::Result<Vec<_>>>()?;
+    inputs.sort();
+    for d in inputs {
+        hash.update(d);
     }
     Ok(hash.finalize().iter().map(|b| format!("{b:02x}")).collect())
 }

@@ -31,6 +31,7 @@ impl EnvMap {
         let path = base_dir.join(&filename);
         let img = crate::image::read_image(&path, true)
             .map_err(|e| props.error_at("filename", format!("cannot read environment map: {e:#}")))?;
+        crate::resources::note_input_file(&path);
         let scale = props.float("scale", 1.0)?;
         let to_world = Transform::new(props.transform("to_world")?)
             .ok_or_else(|| props.error_at("to_world", "the envmap's to_world matrix is singular"))?;

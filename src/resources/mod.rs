@@ -4,7 +4,9 @@
 //! swap (/proc/meminfo), what an address-space limit (`ulimit -v`, /proc/self/limits) leaves and
 //! what the user's `--max-memory` cap leaves of resident memory; and the watch on that cap.
 
+use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Mutex;
 
 const GIB: f64 = (1u64 << 30) as f64;
 
@@ -222,4 +224,23 @@ mod tests {
             assert!(parse_size(bad).is_err(), "{bad}");
         }
     }
+}
+
+/// Files the loaders read (included scene files, meshes, textures, environment maps).
+static INPUT_FILES: Mutex<Vec<PathBuf>> = Mutex::new(Vec::new());
+
+/// Notes a file a loader read, so a render can record everything its image depends on (the scene
+/// hash that `--part` and `--checkpoint` store and `merge` and `--resume` compare).
+pub fn note_input_file(path: &Path) {
+    let path = std::fs::canonicalize(path).unwrap_or_else(|_| path.to_path_buf());
+    // A poisoned lock only means another loader panicked; the list itself is still valid.
+    let mut files = INPUT_FILES.lock().unwrap_or_else(|e| e.into_inner());
+    if !files.contains(&path) {
+        files.push(path);
+    }
+}
+
+/// The files noted so far by this process's loaders, in the order they were first read.
+pub fn input_files() -> Vec<PathBuf> {
+    INPUT_FILES.lock().unwrap_or_else(|e| e.into_inner()).clone()
 }

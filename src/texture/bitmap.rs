@@ -118,6 +118,7 @@ impl BitmapData {
         let cache = CACHE.get_or_init(|| Mutex::new(HashMap::new()));
         // A poisoned lock only means another loader panicked; the map itself is still valid.
         let mut map = cache.lock().unwrap_or_else(|e| e.into_inner());
+        crate::resources::note_input_file(path);
         if let Some(data) = map.get(&key).and_then(Weak::upgrade) {
             return Ok(data);
         }

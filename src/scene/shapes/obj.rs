@@ -10,6 +10,7 @@ use std::path::Path;
 pub(super) fn load(path: &Path, props: &Props) -> Result<RawMesh, SceneError> {
     let bytes = std::fs::read(path)
         .map_err(|e| props.error(format!("cannot read mesh file '{}': {e}", path.display())))?;
+    crate::resources::note_input_file(path);
     let text = String::from_utf8_lossy(&bytes);
     check_vertex_lines(&text, path, props)?;
 

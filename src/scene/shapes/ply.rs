@@ -125,6 +125,7 @@ impl PropertyAccess for Skip {
 pub(super) fn load(path: &Path, props: &Props) -> Result<RawMesh, SceneError> {
     let fail = |msg: String| props.error(format!("PLY file '{}': {msg}", path.display()));
     let file = std::fs::File::open(path).map_err(|e| fail(format!("cannot open: {e}")))?;
+    crate::resources::note_input_file(path);
     let mut reader = Reader::new(BufReader::new(file));
     let header =
         Parser::<Skip>::new().read_header(&mut reader).map_err(|e| fail(format!("invalid header: {e}")))?;

@@ -180,6 +180,7 @@ impl<'i> XmlParser<'i> {
         check_parse_fits(meta.len(), PARSE_BYTES_PER_FILE_BYTE + 1, &path).map_err(in_included)?;
         let text = std::fs::read_to_string(&path)
             .map_err(|e| self.err(node, format!("cannot read the included file {}: {e}", path.display())))?;
+        crate::resources::note_input_file(&path);
         let doc = parse_document(&text, &path).map_err(in_included)?;
         let mut includes = std::mem::take(&mut self.includes);
         includes.push((canonical, path.clone()));
