@@ -174,6 +174,25 @@ fn address_space_left() -> Option<u64> {
     Some(limit.saturating_sub(mapped))
 }
 
+/// Files the loaders read (included scene files, meshes, textures, environment maps).
+static INPUT_FILES: Mutex<Vec<PathBuf>> = Mutex::new(Vec::new());
+
+/// Notes a file a loader read, so a render can record everything its image depends on (the scene
+/// hash that `--part` and `--checkpoint` store and `merge` and `--resume` compare).
+pub fn note_input_file(path: &Path) {
+    let path = std::fs::canonicalize(path).unwrap_or_else(|_| path.to_path_buf());
+    // A poisoned lock only means another loader panicked; the list itself is still valid.
+    let mut files = INPUT_FILES.lock().unwrap_or_else(|e| e.into_inner());
+    if !files.contains(&path) {
+        files.push(path);
+    }
+}
+
+/// The files noted so far by this process's loaders, in the order they were first read.
+pub fn input_files() -> Vec<PathBuf> {
+    INPUT_FILES.lock().unwrap_or_else(|e| e.into_inner()).clone()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -224,23 +243,4 @@ mod tests {
             assert!(parse_size(bad).is_err(), "{bad}");
         }
     }
-}
-
-/// Files the loaders read (included scene files, meshes, textures, environment maps).
-static INPUT_FILES: Mutex<Vec<PathBuf>> = Mutex::new(Vec::new());
-
-/// Notes a file a loader read, so a render can record everything its image depends on (the scene
-/// hash that `--part` and `--checkpoint` store and `merge` and `--resume` compare).
-pub fn note_input_file(path: &Path) {
-    let path = std::fs::canonicalize(path).unwrap_or_else(|_| path.to_path_buf());
-    // A poisoned lock only means another loader panicked; the list itself is still valid.
-    let mut files = INPUT_FILES.lock().unwrap_or_else(|e| e.into_inner());
-    if !files.contains(&path) {
-        files.push(path);
-    }
-}
-
-/// The files noted so far by this process's loaders, in the order they were first read.
-pub fn input_files() -> Vec<PathBuf> {
-    INPUT_FILES.lock().unwrap_or_else(|e| e.into_inner()).clone()
 }
