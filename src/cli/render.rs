@@ -380,9 +380,8 @@ pub(super) fn run_render(args: RenderArgs) -> anyhow::Result<i32> {
             let (Some(w), Some(state)) = (&checkpoints, &s.state) else { return };
             let mut next = next_checkpoint.lock().unwrap_or_else(|e| e.into_inner());
             if s.elapsed >= *next {
-                while *next <= s.elapsed {
-                    *next += every;
-                }
+                // The first multiple of the interval after now, however many passed since the last.
+                *next = every.mul_f64((s.elapsed.as_secs_f64() / every.as_secs_f64()).floor() + 1.0);
                 if let Err(e) = w.write(state, s.elapsed.as_secs_f64(), false, &Vec::new()) {
                     // The render goes on: the next checkpoint or the final write may still succeed.
                     eprintln!("warning: checkpoint not written: {e:#}");
@@ -418,7 +417,6 @@ pub(super) fn run_render(args: RenderArgs) -> anyhow::Result<i32> {
         Work::Pixels { spp } => (spp.min(u32::MAX as u64) as u32, spp * pixels),
         Work::Chains { mutations, .. } => ((mutations / pixels).min(u32::MAX as u64) as u32, mutations),
     };
-    let run_elapsed = stats.elapsed;
     stats.elapsed += Duration::from_secs_f64(elapsed_before);
     let image = state.image();
     if let Some(stream) = tev.as_mut() {
@@ -481,7 +479,6 @@ pub(super) fn run_render(args: RenderArgs) -> anyhow::Result<i32> {
             );
         }
     }
-    let _ = run_elapsed;
     if !args.quiet {
         if segment.is_none() {
             eprintln!("nothing left to render: the checkpoint holds all the work asked for");
