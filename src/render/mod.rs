@@ -46,7 +46,7 @@ pub struct RenderOptions {
     /// The share of the work this run does (`hslt render --part K/N`): pixel integrators take their
     /// share of each pixel's sample indices (of a time-limited render: streams of their own), the
     /// Metropolis ones their share of seed samples, chains and mutations, so the shares together are
-    /// one render (`render::merge`).
+    /// one render (`RenderState::absorb`).
     pub share: Share,
     /// Mutations an earlier run of this render already did: a resumed Metropolis render with a fixed
     /// amount of work (`spp`) runs only the rest.
