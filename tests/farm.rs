@@ -110,16 +110,25 @@ fn pt_parts_merge_to_exactly_the_single_render_and_any_subset_is_unbiased() {
     }
 }
 
+/// Renders `--part 1/2` and `2/2` with `options` into `dir` and merges them; returns part 1 and the merge.
+fn two_parts_merged(dir: &Path, options: &[&str]) -> (PathBuf, PathBuf) {
+    let (a, b, merged) = (dir.join("a.exr"), dir.join("b.exr"), dir.join("merged.exr"));
+    for (part, out) in [("1/2", &a), ("2/2", &b)] {
+        let mut args = options.to_vec();
+        args.extend(["--part", part]);
+        render(out, &args);
+    }
+    run(&["merge", path(&a), path(&b), "-o", path(&merged), "-q"]);
+    (a, merged)
+}
+
 #[test]
 fn bdpt_parts_with_light_tracing_splats_merge_exactly() {
     let dir = tmp_dir("bdpt-parts");
     let single = dir.join("single.exr");
-    render(&single, &["--integrator", "bdpt", "--spp", "8", "--seed", "3"]);
-    let (a, b) = (dir.join("a.exr"), dir.join("b.exr"));
-    render(&a, &["--integrator", "bdpt", "--spp", "8", "--seed", "3", "--part", "1/2"]);
-    render(&b, &["--integrator", "bdpt", "--spp", "8", "--seed", "3", "--part", "2/2"]);
-    let merged = dir.join("merged.exr");
-    run(&["merge", path(&a), path(&b), "-o", path(&merged), "-q"]);
+    let options = ["--integrator", "bdpt", "--spp", "8", "--seed", "3"];
+    render(&single, &options);
+    let (_, merged) = two_parts_merged(&dir, &options);
     let err = rel_mse(&merged, &single);
     assert!(err <= 1e-6, "bdpt merged parts against the single render: rel MSE {err:e}");
 }
@@ -158,12 +167,9 @@ fn pssmlt_parts_merge_as_well_as_one_render_of_their_work() {
     let dir = tmp_dir("pssmlt-parts");
     let reference = bdpt_reference();
     let single = dir.join("single.exr");
-    render(&single, &["--integrator", "pssmlt", "--spp", "128", "--seed", "2"]);
-    let (a, b) = (dir.join("a.exr"), dir.join("b.exr"));
-    render(&a, &["--integrator", "pssmlt", "--spp", "128", "--seed", "2", "--part", "1/2"]);
-    render(&b, &["--integrator", "pssmlt", "--spp", "128", "--seed", "2", "--part", "2/2"]);
-    let merged = dir.join("merged.exr");
-    run(&["merge", path(&a), path(&b), "-o", path(&merged), "-q"]);
+    let options = ["--integrator", "pssmlt", "--spp", "128", "--seed", "2"];
+    render(&single, &options);
+    let (a, merged) = two_parts_merged(&dir, &options);
     assert_eq!(
         meta(&merged, "hslt.state.mutations"),
         meta(&single, "hslt.samples"),

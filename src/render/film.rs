@@ -96,14 +96,9 @@ impl Film {
         }
     }
 
-    /// Adds a resolved image (same size, RGB) as one more sample of every pixel: a separately rendered
-    /// component that the splats then land on (Metropolis integrators' direct-illumination pass).
-    pub fn add_image_as_sample(&mut self, image: &ImageBuf) {
-        self.add_image_as_samples(image, 1);
-    }
-
-    /// Adds a resolved image (same size, RGB) as the mean of `samples` samples of every pixel, so that
-    /// films merged later weight it by the work behind it (a direct pass of 16 spp against one of 48).
+    /// Adds a resolved image (same size, RGB) as the mean of `samples` samples of every pixel: a
+    /// separately rendered component that the splats then land on (Metropolis integrators' direct
+    /// pass), weighted so that films merged later weigh it by the work behind it.
     pub fn add_image_as_samples(&mut self, image: &ImageBuf, samples: u64) {
         assert_eq!((image.width, image.height), (self.width, self.height), "adding an image of another size");
         if samples == 0 {
@@ -390,7 +385,7 @@ mod tests {
         let mut film = Film::new(2, 1);
         let mut base = ImageBuf::new(2, 1, 3);
         base.data.copy_from_slice(&[0.25, 0.5, 1.0, 2.0, 0.0, 3.0]);
-        film.add_image_as_sample(&base);
+        film.add_image_as_samples(&base, 1);
         film.add_splat(&Splat { pos: Vec2::new(1.5, 0.5), value: Spectrum::splat(4.0), layer: None });
         film.splat_scale = 0.5;
         let img = film.to_image();
