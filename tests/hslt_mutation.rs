@@ -4,6 +4,7 @@
 
 use hslt::cli::load_scene;
 use hslt::manifold::{path_constraints, path_etas, path_geometry, path_geometry_in_chart};
+use hslt::metropolis::mutations::halfvector::Chain as MovedChain;
 use hslt::metropolis::mutations::halfvector::{
     applicable, relative_mismatch, walk_from, HalfVectorMutation, HalfVectorParams, TraceDirection,
     TraceStart, REVERSIBILITY_TOLERANCE,
@@ -40,6 +41,14 @@ fn ln_det_j(scene: &Scene, path: &[hslt::path::Vertex], chart: &[glam::DVec3]) -
     let c = path_constraints(&g, &eta).unwrap();
     let dirac = hslt::manifold::log_dirac_factor(path, &path_geometry(path), &eta).unwrap();
     c.jacobian.factor().unwrap().log_det().ln_abs + dirac
+}
+
+/// The stretch of vertices a proposal moved: from the last vertex before the first that moved to the
+/// first after the last that moved (the chain's held ends).
+fn moved_chain(x: &PathState, y: &PathState) -> MovedChain {
+    let moved: Vec<usize> = (0..x.vertices.len()).filter(|&i| x.vertices[i].p != y.vertices[i].p).collect();
+    let (first, last) = (moved[0], moved[moved.len() - 1]);
+    MovedChain { start: first - 1, end: last + 1 }
 }
 
 /// Any path: the detailed-balance checks draw from the whole stationary distribution.
@@ -97,7 +106,7 @@ fn sample_proposals(
         out.rays += cast;
         let (valid, r) = match proposal {
             Err(Failure::NotApplicable) => {
-                assert!(!applicable(&x.vertices));
+                assert!(mutation.chains(&x.vertices).is_empty());
                 out.not_applicable += 1;
                 continue;
             }
@@ -112,13 +121,21 @@ fn sample_proposals(
                 assert!(y.contribution.is_finite() && target(y) > 0.0);
                 // The returned ratio is the densities of both directions in the area-measure form.
                 if out.ratio_checks < 200 && p.t_ratio > 0.0 {
-                    let forward = mutation.transition_log_density(scene, &x, y).unwrap();
-                    let backward = mutation.transition_log_density(scene, y, &x).unwrap();
-                    let chart = |p: &PathState| mutation.prepare(scene, &p.vertices, p.film).unwrap().chart;
+                    let chain = moved_chain(&x, y);
+                    if !params.sub_chains {
+                        assert_eq!(chain, MovedChain { start: 0, end: x.vertices.len() - 1 });
+                    }
+                    let forward = mutation.transition_log_density(scene, &x, y, chain).unwrap();
+                    let backward = mutation.transition_log_density(scene, y, &x, chain).unwrap();
+                    let range = chain.start..=chain.end;
+                    let chart = |p: &PathState| {
+                        let film = (chain.start == 0).then_some(p.film);
+                        mutation.prepare_chain(scene, &p.vertices[range.clone()], film).unwrap().chart
+                    };
                     let (chart_x, chart_y) = (chart(&x), chart(y));
-                    let expected = backward + ln_det_j(scene, &x.vertices, &chart_y)
+                    let expected = backward + ln_det_j(scene, &x.vertices[range.clone()], &chart_y)
                         - forward
-                        - ln_det_j(scene, &y.vertices, &chart_x);
+                        - ln_det_j(scene, &y.vertices[range.clone()], &chart_x);
                     assert!(
                         (p.t_ratio.ln() - expected).abs() < 1e-9 * (1.0 + expected.abs()),
                         "ln ratio {} but densities give {expected}",
@@ -238,7 +255,41 @@ fn detailed_balance_on_fig15_traced_from_the_light() {
     );
 }
 
+#[test]
+fn detailed_balance_on_jewelry_with_sub_chains() {
+    // Chains held at rough inner vertices: the proposal density carries the chain's probability at
+    // X and at Y, and chains away from the camera keep the image point and use BSDF steps.
+    let (stats, n) = check_detailed_balance(
+        "scenes/jewelry/scene.xml",
+        &[("resx", "64"), ("resy", "48"), ("max_depth", "4")],
+        HalfVectorParams { sub_chains: true, ..HalfVectorParams::default() },
+        every_path,
+    );
+    let share = stats.sums.get("sub_chains").unwrap_or(&0.0) / n as f64;
+    assert!((0.05..0.95).contains(&share), "sub-chains were {share:.3} of the proposals");
+}
+
+#[test]
+fn detailed_balance_on_fig15_with_sub_chains() {
+    check_detailed_balance(
+        "scenes/fig15/scene.xml",
+        &[("resx", "64"), ("resy", "48"), ("max_depth", "4"), ("roughness", "0.1")],
+        HalfVectorParams { sub_chains: true, ..HalfVectorParams::default() },
+        every_path,
+    );
+}
+
 const GLOSSY_CAUSTIC: &str = "scenes/glossy-caustic/scene.xml";
+
+#[test]
+fn detailed_balance_through_dirac_vertices_with_sub_chains() {
+    check_detailed_balance(
+        GLOSSY_CAUSTIC,
+        &[("resx", "64"), ("resy", "48"), ("max_depth", "4")],
+        HalfVectorParams { sub_chains: true, ..HalfVectorParams::default() },
+        through_dirac,
+    );
+}
 
 #[test]
 fn detailed_balance_through_dirac_vertices() {
@@ -419,7 +470,7 @@ fn the_tracing_direction_is_recorded_and_followed() {
     assert!(TraceDirection::parse("sideways").is_err());
 }
 
-fn check_against_bdpt(rel: &str, defines: &[(&str, &str)]) {
+fn check_against_bdpt(rel: &str, defines: &[(&str, &str)], params: HalfVectorParams) {
     // Chains that start stationary (seeds drawn ∝ target) and run only the half-vector mutation keep
     // every recorded state distributed as the target, so their image is unbiased even though HSLT
     // alone is not ergodic. Six independent HSLT runs against six independent BDPT runs at 32 × 24
@@ -431,7 +482,7 @@ fn check_against_bdpt(rel: &str, defines: &[(&str, &str)]) {
     let mut failed = std::collections::BTreeMap::<String, u64>::new();
     let mlt: Vec<Vec<f64>> = (0..8)
         .map(|seed| {
-            let integrator = hslt_only(&s, 8192, HalfVectorParams::default());
+            let integrator = hslt_only(&s, 8192, params);
             let options = RenderOptions { spp: Some(128), seed: 40 + seed, ..Default::default() };
             let out = hslt::render::Integrator::render(&integrator, &s, &options, &AtomicBool::new(false));
             let img = out.film.to_image();
@@ -482,12 +533,29 @@ fn check_against_bdpt(rel: &str, defines: &[(&str, &str)]) {
 
 #[test]
 fn hslt_only_chains_reproduce_bdpt_on_the_glossy_caustic() {
-    check_against_bdpt(GLOSSY_CAUSTIC, &[("resx", "32"), ("resy", "24"), ("max_depth", "4")]);
+    check_against_bdpt(
+        GLOSSY_CAUSTIC,
+        &[("resx", "32"), ("resy", "24"), ("max_depth", "4")],
+        HalfVectorParams::default(),
+    );
 }
 
 #[test]
 fn hslt_only_chains_reproduce_bdpt_on_jewelry() {
-    check_against_bdpt("scenes/jewelry/scene.xml", &[("resx", "32"), ("resy", "24"), ("max_depth", "4")]);
+    check_against_bdpt(
+        "scenes/jewelry/scene.xml",
+        &[("resx", "32"), ("resy", "24"), ("max_depth", "4")],
+        HalfVectorParams::default(),
+    );
+}
+
+#[test]
+fn hslt_only_chains_with_sub_chains_reproduce_bdpt_on_jewelry() {
+    check_against_bdpt(
+        "scenes/jewelry/scene.xml",
+        &[("resx", "32"), ("resy", "24"), ("max_depth", "4")],
+        HalfVectorParams { sub_chains: true, ..HalfVectorParams::default() },
+    );
 }
 
 #[test]
@@ -495,6 +563,7 @@ fn hslt_only_chains_reproduce_bdpt_on_fig15() {
     check_against_bdpt(
         "scenes/fig15/scene.xml",
         &[("resx", "32"), ("resy", "24"), ("max_depth", "4"), ("roughness", "0.1")],
+        HalfVectorParams::default(),
     );
 }
 

@@ -52,6 +52,9 @@ pub struct CompareArgs {
     /// HSLT: the end the half-vector mutation's walk traces from (see `render --hslt-direction`).
     #[arg(long, value_name = "DIR", default_value = "camera", value_parser = ["camera", "light", "rule"])]
     pub hslt_direction: String,
+    /// HSLT: what the half-vector mutation moves, `sub` or `whole` (see `render --hslt-chains`).
+    #[arg(long, value_name = "WHICH", default_value = "whole", value_parser = ["whole", "sub"])]
+    pub hslt_chains: String,
     /// Shortest path rendered, in segments (see `render --min-depth`): 3 compares the Metropolis
     /// methods' chains alone, on indirect light, against a reference rendered with the same value.
     #[arg(long, value_name = "N", default_value_t = 1)]
@@ -121,6 +124,7 @@ pub fn run_compare(args: CompareArgs) -> anyhow::Result<i32> {
     let mut settings = registry::IntegratorSettings::new(limits, scene.integrator.hide_emitters);
     settings.min_depth = args.min_depth;
     settings.mutation.halfvector.direction = parse_hslt_direction(&args.hslt_direction)?;
+    settings.mutation.halfvector.sub_chains = args.hslt_chains == "sub";
     let reference = Arc::new(reference);
 
     let mut rows: Vec<ErrorRow> = Vec::new();

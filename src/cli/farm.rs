@@ -72,8 +72,8 @@ pub fn scene_hash(path: &Path, defines: &[(String, String)]) -> anyhow::Result<S
 pub fn image_settings(args: &RenderArgs) -> String {
     format!(
         "integrator={:?} spp={:?} time={:?} seed={} max_depth={:?} min_depth={} mis={} seed_paths={:?} \
-         chains={:?} mutations={:?} lambda={} specular_threshold={} hslt_direction={} p_large={} \
-         direct_samples={:?} direct_share={:?} accel={}",
+         chains={:?} mutations={:?} lambda={} specular_threshold={} hslt_direction={} hslt_chains={} \
+         p_large={} direct_samples={:?} direct_share={:?} accel={}",
         args.integrator,
         args.spp,
         args.time,
@@ -87,6 +87,7 @@ pub fn image_settings(args: &RenderArgs) -> String {
         args.lambda,
         args.specular_threshold,
         args.hslt_direction,
+        args.hslt_chains,
         args.p_large,
         args.direct_samples,
         args.direct_share,

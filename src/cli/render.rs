@@ -93,6 +93,11 @@ pub struct RenderArgs {
     /// end whose adjacent vertex is smoother).
     #[arg(long, value_name = "DIR", default_value = "camera", value_parser = ["camera", "light", "rule"])]
     pub hslt_direction: String,
+    /// HSLT: what the half-vector mutation moves: `sub`, a stretch of the path between two rough
+    /// vertices (or its ends), chosen with short stretches preferred (improved HSLT, Hanika et al.
+    /// 2015), or `whole`, every inner vertex with both ends held (the 2014 paper).
+    #[arg(long, value_name = "WHICH", default_value = "whole", value_parser = ["whole", "sub"])]
+    pub hslt_chains: String,
     /// PSSMLT: probability of a large step (an independent new sample) per mutation.
     #[arg(long, value_name = "P", default_value_t = 0.3)]
     pub p_large: f64,
@@ -292,6 +297,7 @@ pub(super) fn run_render(args: RenderArgs) -> anyhow::Result<i32> {
     }
     settings.mutation.specular_threshold = args.specular_threshold;
     settings.mutation.halfvector.direction = parse_hslt_direction(&args.hslt_direction)?;
+    settings.mutation.halfvector.sub_chains = args.hslt_chains == "sub";
     let options = RenderOptions {
         spp: args.spp.or(if args.time.is_some() { None } else { Some(scene.spp) }),
         time_limit: args.time.map(Duration::from_secs_f64),

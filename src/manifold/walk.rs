@@ -7,7 +7,7 @@
 use glam::{DVec2, DVec3};
 
 use super::constraint::{
-    path_constraints, path_geometry_in_chart, ConstraintError, LocalGeometry, PathConstraints,
+    path_constraints, path_geometry_in_chart, path_half_vectors, ConstraintError, LocalGeometry,
 };
 use super::corrector::{CorrectorPass, RayBatch};
 use crate::accel::RayQuery;
@@ -23,7 +23,10 @@ pub struct WalkSettings {
     pub tolerance: f64,
     pub relative_tolerance: f64,
     pub precision_floor: f64,
-    /// Give up once the step fraction falls below this.
+    /// The smallest step fraction a corrector pass traces: the walk gives up when the next candidate
+    /// would be smaller, whether the last step was refused or accepted. Accepting ever smaller steps
+    /// is how a walk crawls towards an edge of the manifold it cannot cross (or a target it cannot
+    /// reach), lowering its error by about the fraction each time and never converging.
     pub min_step: f64,
     /// Cast each corrector row's rays (one per candidate step size, and per walk in flight for
     /// `walk_many`) as one batched query; false casts them one at a time (`hslt bench hslt` measures
@@ -208,10 +211,12 @@ pub fn walk_many_through(
     results.into_iter().map(|r| r.expect("every job finishes")).collect()
 }
 
-/// A walk between two ray queries: the Newton iterate, its constraints and the corrector pass in flight.
+/// A walk between two ray queries: the Newton iterate, its half vectors and the corrector pass in flight.
 struct WalkState {
     current: Vec<Vertex>,
-    constraints: PathConstraints,
+    /// The iterate's half vectors; the Jacobian is evaluated only where a Newton step is taken from it
+    /// (not at rejected candidates, nor at the converged end).
+    h: Vec<DVec2>,
     error: f64,
     tolerance: f64,
     errors: Vec<f64>,
@@ -219,7 +224,7 @@ struct WalkState {
     iteration: usize,
     /// The first candidate (0 = the full step) the pass in flight traces.
     candidate: usize,
-    /// This iteration's Newton direction and the geometry it was computed at.
+    /// This iteration's Newton direction, and the geometry of `current` it was computed at.
     dx: Vec<DVec2>,
     geometry: Vec<LocalGeometry>,
     /// The pass of iteration `iteration`, or an empty one before the first.
@@ -230,13 +235,14 @@ impl WalkState {
     fn start(job: &WalkJob, settings: &WalkSettings) -> Result<WalkState, WalkError> {
         let (path, target) = (job.path, job.target);
         assert!(path.len() >= 3 && target.len() == path.len() - 2, "one target per inner vertex");
-        let constraints = path_constraints(&path_geometry_in_chart(path, job.chart), job.eta)?;
-        let error = max_error(&constraints.h, target);
+        let geometry = path_geometry_in_chart(path, job.chart);
+        let h = path_half_vectors(&geometry, job.eta)?;
+        let error = max_error(&h, target);
         let tolerance =
             settings.tolerance.min(settings.relative_tolerance * error).max(settings.precision_floor);
         Ok(WalkState {
             current: path.to_vec(),
-            constraints,
+            h,
             error,
             tolerance,
             errors: vec![error],
@@ -244,7 +250,7 @@ impl WalkState {
             iteration: 0,
             candidate: 0,
             dx: Vec::new(),
-            geometry: Vec::new(),
+            geometry,
             pass: CorrectorPass::idle(),
         })
     }
@@ -258,16 +264,17 @@ impl WalkState {
         if self.pass.is_finished() {
             let per_pass = if settings.candidates_at_once { CANDIDATES } else { 1 };
             if !self.take_best_candidate(job) {
-                if self.candidate + per_pass < CANDIDATES {
+                let next = self.candidate + per_pass;
+                if next < CANDIDATES && self.fraction(next) >= settings.min_step {
                     // The same iteration, the next smaller candidates.
-                    self.candidate += per_pass;
-                    self.restart_pass(per_pass);
+                    self.candidate = next;
+                    self.restart_pass(per_pass, settings.min_step);
                     return None;
                 }
                 self.step *= 0.125;
-                if self.step < settings.min_step {
-                    return Some(Err(WalkError::DidNotConverge));
-                }
+            }
+            if self.step < settings.min_step {
+                return Some(Err(WalkError::DidNotConverge));
             }
             self.candidate = 0;
             self.iteration += 1;
@@ -278,21 +285,32 @@ impl WalkState {
         if self.iteration >= settings.max_iterations {
             return Some(Err(WalkError::DidNotConverge));
         }
-        let lu = match self.constraints.jacobian.factor() {
+        let jacobian = match path_constraints(&self.geometry, job.eta) {
+            Ok(constraints) => constraints.jacobian,
+            Err(e) => return Some(Err(e.into())),
+        };
+        let lu = match jacobian.factor() {
             Ok(lu) => lu,
             Err(s) => return Some(Err(WalkError::Singular { row: s.row })),
         };
-        let dh: Vec<DVec2> = job.target.iter().zip(&self.constraints.h).map(|(t, h)| *t - *h).collect();
+        let dh: Vec<DVec2> = job.target.iter().zip(&self.h).map(|(t, h)| *t - *h).collect();
         self.dx = lu.solve(&dh);
-        self.geometry = path_geometry_in_chart(&self.current, job.chart);
-        self.restart_pass(if settings.candidates_at_once { CANDIDATES } else { 1 });
+        self.restart_pass(if settings.candidates_at_once { CANDIDATES } else { 1 }, settings.min_step);
         None
     }
 
-    /// Starts the corrector pass for `count` candidates from `self.candidate` on.
-    fn restart_pass(&mut self, count: usize) {
-        let fractions: Vec<f64> =
-            (self.candidate..self.candidate + count).map(|c| self.step * 0.5f64.powi(c as i32)).collect();
+    /// Candidate `c`'s fraction of the Newton step in this iteration.
+    fn fraction(&self, c: usize) -> f64 {
+        self.step * 0.5f64.powi(c as i32)
+    }
+
+    /// Starts the corrector pass for up to `count` candidates from `self.candidate` on, those whose
+    /// fraction is at least `min_step`.
+    fn restart_pass(&mut self, count: usize, min_step: f64) {
+        let fractions: Vec<f64> = (self.candidate..self.candidate + count)
+            .map(|c| self.fraction(c))
+            .take_while(|&f| f >= min_step)
+            .collect();
         let (geometry, dx) = (&self.geometry, &self.dx);
         self.pass.restart(&self.current, &fractions, |i, fraction| {
             (geometry[i].p + geometry[i].displacement(dx[i - 1] * fraction)).as_vec3()
@@ -308,17 +326,17 @@ impl WalkState {
             if pass.status[c].is_err() {
                 continue;
             }
-            let Ok(new_constraints) =
-                path_constraints(&path_geometry_in_chart(&pass.built[c], job.chart), job.eta)
-            else {
+            let new_geometry = path_geometry_in_chart(&pass.built[c], job.chart);
+            let Ok(new_h) = path_half_vectors(&new_geometry, job.eta) else {
                 continue;
             };
-            let new_error = max_error(&new_constraints.h, job.target);
+            let new_error = max_error(&new_h, job.target);
             if new_error < self.error {
                 let fraction = pass.fractions[c];
                 // The old iterate's buffer becomes this candidate's for the next pass.
                 std::mem::swap(&mut self.current, &mut pass.built[c]);
-                self.constraints = new_constraints;
+                self.h = new_h;
+                self.geometry = new_geometry;
                 self.error = new_error;
                 self.errors.push(new_error);
                 self.step = (fraction * 2.0).min(1.0);
@@ -331,7 +349,7 @@ impl WalkState {
     fn result(&mut self) -> WalkResult {
         WalkResult {
             path: std::mem::take(&mut self.current),
-            h: std::mem::take(&mut self.constraints.h),
+            h: std::mem::take(&mut self.h),
             errors: std::mem::take(&mut self.errors),
             iterations: self.iteration,
         }

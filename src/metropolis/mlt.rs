@@ -282,6 +282,8 @@ impl Integrator for PathMlt {
         if self.settings.mutations.iter().any(|(k, _)| *k == MutationKind::HalfVector) {
             let direction = self.settings.mutation.halfvector.direction.name();
             metadata.push(("hslt.mlt.hslt.direction".into(), direction.into()));
+            let chains = if self.settings.mutation.halfvector.sub_chains { "sub" } else { "whole" };
+            metadata.push(("hslt.mlt.hslt.chains".into(), chains.into()));
         }
         if cancel.load(Ordering::Relaxed) || !(b > 0.0 && b.is_finite()) {
             stats.interrupted = cancel.load(Ordering::Relaxed);
