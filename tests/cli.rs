@@ -176,6 +176,73 @@ fn bench_rays_compares_both_backends() {
     }
 }
 
+/// `bench pt` against a stand-in for a Python that imports Mitsuba: it answers the probe with a
+/// version and every render with fixed timings, and records the arguments it was given, so the test
+/// sees what reaches Mitsuba and that the printed ratio is computed from both sides' times.
+#[test]
+fn bench_pt_times_our_process_against_mitsuba_side_by_side() {
+    use std::os::unix::fs::PermissionsExt;
+    let dir = tmp_dir("bench-mitsuba");
+    let (python, calls) = (dir.join("python"), dir.join("calls.txt"));
+    let stub = format!(
+        "#!/bin/sh\n\
+         if [ $# -eq 2 ]; then echo 3.9.1; exit 0; fi\n\
+         shift 2\n\
+         echo \"$@\" >> {calls}\n\
+         echo '{{\"version\": \"3.9.1\", \"import_seconds\": 0.5, \"load_seconds\": 0.25, \
+         \"first_render_seconds\": 120.0, \"render_seconds\": 100.0, \"samples\": 512, \
+         \"peak_memory_bytes\": 1073741824}}'\n",
+        calls = calls.display()
+    );
+    std::fs::write(&python, stub).unwrap();
+    std::fs::set_permissions(&python, std::fs::Permissions::from_mode(0o755)).unwrap();
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/cornell-box/scene.xml");
+    let out = hslt()
+        .args(["bench", "pt", scene.to_str().unwrap(), "-D", "resx=16", "-D", "resy=16", "--spp", "2"])
+        .args(["--threads", "1", "--repeats", "2", "--mitsuba-variants", "llvm_ad_rgb"])
+        .arg("--mitsuba-python")
+        .arg(&python)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", stderr(&out));
+    let text = String::from_utf8_lossy(&out.stdout);
+    // Two pairs: our process twice, the stand-in twice, with the scene, spp, threads and -D values.
+    let recorded = std::fs::read_to_string(&calls).unwrap();
+    let lines: Vec<&str> = recorded.lines().collect();
+    assert_eq!(lines.len(), 2, "{recorded}");
+    for needle in ["llvm_ad_rgb", "scene.xml", " 2 1 ", "\"resx\":\"16\"", "\"resy\":\"16\""] {
+        assert!(lines[0].contains(needle), "'{needle}' missing from Mitsuba's arguments: {}", lines[0]);
+    }
+    let ours = text.lines().find(|l| l.starts_with("hslt pt, whole process")).expect(&text);
+    let our_secs: f64 = ours.split_whitespace().nth(4).unwrap().parse().unwrap();
+    assert!(our_secs > 0.0 && our_secs < 60.0, "{ours}");
+    assert!(text.contains("mitsuba llvm_ad_rgb, render alone"), "{text}");
+    let ratio_line = text.lines().find(|l| l.contains("ratio:")).expect(&text);
+    let ratio: f64 = ratio_line.split(" is ").nth(1).unwrap().split('x').next().unwrap().parse().unwrap();
+    // Stand-in's 100 s over our time, which is printed rounded to two decimals.
+    let (low, high) = (100.0 / (our_secs + 0.005), 100.0 / (our_secs - 0.005));
+    assert!((low - 0.01..=high + 0.01).contains(&ratio), "{ratio_line} with our {our_secs} s");
+    assert!(ratio_line.contains("peak memory"), "{ratio_line}");
+}
+
+#[test]
+fn bench_pt_skips_mitsuba_with_the_reason_when_it_cannot_be_imported() {
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/cornell-box/scene.xml");
+    let out = hslt()
+        .args(["bench", "pt", scene.to_str().unwrap(), "-D", "resx=16", "-D", "resy=16", "--spp", "1"])
+        .args(["--threads", "1", "--mitsuba-python", "/bin/false"])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", stderr(&out));
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(text.contains("samples/s"), "{text}");
+    for variant in ["llvm_ad_rgb", "scalar_rgb"] {
+        let line = text.lines().find(|l| l.contains(variant)).expect(&text);
+        assert!(line.contains("skipped") && line.contains("cannot import Mitsuba 3"), "{line}");
+    }
+    assert!(!text.contains("side by side"), "{text}");
+}
+
 #[test]
 fn hslt_direction_reaches_the_mutation_and_the_metadata() {
     let dir = tmp_dir("direction");

@@ -2,6 +2,7 @@
 //! same threads — build time, structure memory and Mrays/s for coherent, incoherent, shadow and
 //! manifold-corrector-style ray bundles; also Embree's packet/stream/single paths and wrapper overhead.
 
+pub mod mitsuba;
 mod mutations;
 
 pub use mutations::{bench_hslt, proposal_walks, stationary_starts, ProposalWalk};

@@ -79,9 +79,20 @@ pub struct BenchArgs {
     /// Ray-query backend.
     #[arg(long, default_value = "embree")]
     pub accel: String,
-    /// Worker threads (0 = all cores).
+    /// Worker threads (0 = all cores), for us and for Mitsuba.
     #[arg(long, default_value_t = 0)]
     pub threads: usize,
+    /// Also time our whole `hslt render --integrator pt` process against Mitsuba 3's render of the same
+    /// file, pair by pair, with these variants (an empty list skips the comparison).
+    #[arg(long, value_name = "LIST", default_value = "llvm_ad_rgb,scalar_rgb")]
+    pub mitsuba_variants: String,
+    /// Python interpreter that imports Mitsuba 3 [default: $HSLT_MITSUBA_PYTHON, else python3]; when it
+    /// cannot, the comparison is skipped with the reason.
+    #[arg(long, value_name = "PATH")]
+    pub mitsuba_python: Option<std::path::PathBuf>,
+    /// Pairs of runs for the comparison with Mitsuba; medians are reported.
+    #[arg(long, default_value_t = 3)]
+    pub repeats: usize,
 }
 
 pub(super) fn run_bench(args: BenchArgs) -> anyhow::Result<i32> {
@@ -113,7 +124,92 @@ pub(super) fn run_bench(args: BenchArgs) -> anyhow::Result<i32> {
         100.0 * query_secs / busy.max(1e-9),
         clock.calls()
     );
+    compare_with_mitsuba(&args, &scene)?;
     Ok(0)
+}
+
+/// Our whole render process against Mitsuba's render alone, alternating, medians of `args.repeats`.
+fn compare_with_mitsuba(args: &BenchArgs, scene: &crate::scene::Scene) -> anyhow::Result<()> {
+    use crate::bench::mitsuba::{median, probe, python_for_mitsuba, run_mitsuba, run_ours};
+    let wanted: Vec<&str> =
+        args.mitsuba_variants.split(',').map(str::trim).filter(|v| !v.is_empty()).collect();
+    if wanted.is_empty() {
+        return Ok(());
+    }
+    let python = python_for_mitsuba(args.mitsuba_python.as_deref());
+    let mut variants = Vec::new();
+    for variant in wanted {
+        match probe(&python, variant) {
+            Ok(_) => variants.push(variant),
+            Err(why) => println!("mitsuba {variant:<12} skipped: {why}"),
+        }
+    }
+    if variants.is_empty() {
+        return Ok(());
+    }
+    let scratch = std::env::temp_dir().join(format!("hslt-bench-pt-{}", std::process::id()));
+    std::fs::create_dir_all(&scratch)?;
+    let (path, defines) = (&args.scene.scene, &args.scene.define);
+    let mut ours = Vec::new();
+    let mut theirs: Vec<Vec<crate::bench::mitsuba::MitsubaRun>> = vec![Vec::new(); variants.len()];
+    let result = (|| -> anyhow::Result<()> {
+        for _ in 0..args.repeats.max(1) {
+            ours.push(run_ours(path, defines, args.spp, args.threads, &scratch)?);
+            for (runs, variant) in theirs.iter_mut().zip(&variants) {
+                runs.push(run_mitsuba(&python, variant, path, defines, args.spp, args.threads)?);
+            }
+        }
+        Ok(())
+    })();
+    // The scratch directory holds only our render's image and statistics.
+    let _ = std::fs::remove_dir_all(&scratch);
+    result?;
+    let mib = |b: u64| b as f64 / (1024.0 * 1024.0);
+    let our_secs = median(ours.iter().map(|r| r.process_seconds).collect());
+    let our_peak = ours.iter().map(|r| r.peak_memory_bytes).max().unwrap_or(0);
+    let samples = ours[0].samples;
+    println!();
+    println!(
+        "side by side, {} x {} at {} spp, {} pairs (medians; Mitsuba {} via {})",
+        scene.film.width,
+        scene.film.height,
+        args.spp,
+        ours.len(),
+        theirs[0][0].version,
+        python.display()
+    );
+    println!("{:<34} {:>9} {:>12} {:>10}", "", "seconds", "samples/s", "peak MiB");
+    println!(
+        "{:<34} {:>9.2} {:>12.0} {:>10.0}",
+        "hslt pt, whole process",
+        our_secs,
+        samples as f64 / our_secs,
+        mib(our_peak)
+    );
+    for (runs, variant) in theirs.iter().zip(&variants) {
+        let render = median(runs.iter().map(|r| r.render_seconds).collect());
+        let first = median(runs.iter().map(|r| r.first_render_seconds).collect());
+        let setup = median(runs.iter().map(|r| r.import_seconds + r.load_seconds).collect());
+        let peak = runs.iter().map(|r| r.peak_memory_bytes).max().unwrap_or(0);
+        let their_samples = runs[0].samples;
+        println!(
+            "{:<34} {:>9.2} {:>12.0} {:>10.0}",
+            format!("mitsuba {variant}, render alone"),
+            render,
+            their_samples as f64 / render,
+            mib(peak)
+        );
+        println!("{:<34} {:>9.2}", "  first render (JIT unless cached)", first);
+        println!("{:<34} {:>9.2}", "  import and scene load", setup);
+        println!(
+            "  ratio: hslt whole process is {:.2}x the speed of its render alone ({:.2}x of its first), \
+             peak memory {:.2}x",
+            render / our_secs,
+            first / our_secs,
+            our_peak as f64 / peak.max(1) as f64
+        );
+    }
+    Ok(())
 }
 
 pub(super) fn run_bench_integrators(args: BenchIntegratorsArgs) -> anyhow::Result<i32> {
