@@ -243,3 +243,46 @@ fn walks_in_flight_match_single_walks_bit_for_bit_on_jewelry() {
     assert!(fewer * 2 > jobs.len(), "one by one saved rays on only {fewer} of {} walks", jobs.len());
     eprintln!("rays: {total_a} three candidates at once, {total_b} one by one");
 }
+
+#[test]
+fn testing_only_the_converged_path_for_visibility_keeps_results_unoccluded_and_costs_fewer_rays() {
+    // HSLT's walks skip the corrector's visibility row and test only the path they converge to. Every
+    // converged path must still see the fixed end, and the walks cast fewer rays for it.
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/jewelry/scene.xml");
+    let scene = hslt::cli::load_scene(&path, &[("resx", "32"), ("resy", "24"), ("max_depth", "5")]).unwrap();
+    let limits = hslt::render::DepthLimits {
+        max_depth: scene.integrator.max_depth,
+        rr_depth: scene.integrator.rr_depth,
+    };
+    let bdpt = hslt::integrators::Bdpt::new(limits, scene.integrator.hide_emitters);
+    let starts = stationary_starts(&scene, &bdpt, 150).unwrap();
+    let wide = HalfVectorParams { step_scale: 8.0, stratify: false, ..HalfVectorParams::default() };
+    let mut walks = proposal_walks(&scene, &starts, HalfVectorParams::default(), 21);
+    walks.extend(proposal_walks(&scene, &starts, wide, 22));
+    let jobs: Vec<WalkJob> = walks.iter().map(|w| w.job()).collect();
+    let every = WalkSettings { visibility_every_pass: true, ..HalfVectorParams::default().walk };
+    let last = WalkSettings { visibility_every_pass: false, ..every };
+    let (with_every, with_last) =
+        (walk_in_groups(&scene, &jobs, 16, &every), walk_in_groups(&scene, &jobs, 16, &last));
+    let rays =
+        |r: &[(Result<hslt::manifold::WalkResult, WalkError>, u64)]| r.iter().map(|(_, n)| n).sum::<u64>();
+    let converged = |r: &[(Result<hslt::manifold::WalkResult, WalkError>, u64)]| {
+        r.iter().filter(|(w, _)| w.is_ok()).count()
+    };
+    for (walk, _) in &with_last {
+        if let Ok(w) = walk {
+            let (near, end) = (&w.path[w.path.len() - 2], &w.path[w.path.len() - 1]);
+            let ray = Scene::shadow_segment(near.p, near.offset(), end.p, end.offset()).unwrap();
+            assert!(!scene.accel().occluded(&ray), "a converged path's last segment is blocked");
+        }
+    }
+    let (n_every, n_last) = (converged(&with_every), converged(&with_last));
+    eprintln!(
+        "{} walks: converged {n_every} / {n_last}, rays {} / {} (every pass / converged path only)",
+        jobs.len(),
+        rays(&with_every),
+        rays(&with_last)
+    );
+    assert!(n_every >= jobs.len() / 5 && n_last * 10 >= n_every * 9, "{n_every} against {n_last}");
+    assert!(rays(&with_last) < rays(&with_every));
+}

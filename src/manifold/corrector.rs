@@ -53,7 +53,7 @@ pub fn corrector_pass_counting_rays(
     rays_cast: &mut u64,
 ) -> Vec<Result<Vec<Vertex>, CorrectorFailure>> {
     let mut pass = CorrectorPass::idle();
-    pass.restart(current, fractions, predicted);
+    pass.restart(current, fractions, true, predicted);
     let mut batch = RayBatch::default();
     while pass.is_running() {
         batch.clear();
@@ -81,6 +81,9 @@ pub(super) struct CorrectorPass {
     len: usize,
     /// The candidates whose rays are in flight, in the order they were emitted.
     owners: Vec<usize>,
+    /// Whether row k tests each candidate's last segment with a ray; without it the pass ends after
+    /// placing the inner vertices (the walk then tests only the path it converges to).
+    visibility: bool,
 }
 
 /// Where one corrector row's rays went in a `RayBatch`.
@@ -151,6 +154,9 @@ impl RayBatch {
         {
             hits.clear();
             hits.resize(rays.len(), None);
+            if rays.is_empty() {
+                continue;
+            }
             if batched {
                 accel.intersect_batch(rays, hits);
             } else {
@@ -161,6 +167,9 @@ impl RayBatch {
         }
         self.occluded.clear();
         self.occluded.resize(self.visibility.len(), false);
+        if self.visibility.is_empty() {
+            return;
+        }
         if batched {
             accel.occluded_batch(&self.visibility, &mut self.occluded);
         } else {
@@ -181,16 +190,19 @@ impl CorrectorPass {
             row: 0,
             len: 0,
             owners: Vec::new(),
+            visibility: true,
         }
     }
 
-    /// Starts a pass from `current` with one candidate per step fraction.
+    /// Starts a pass from `current` with one candidate per step fraction; `visibility` as the field.
     pub(super) fn restart(
         &mut self,
         current: &[Vertex],
         fractions: &[f64],
+        visibility: bool,
         predicted: impl Fn(usize, f64) -> Vec3,
     ) {
+        self.visibility = visibility;
         let k = current.len() - 1;
         self.fractions.clear();
         self.fractions.extend_from_slice(fractions);
@@ -278,19 +290,8 @@ impl CorrectorPass {
         self.row += 1;
         if slot.bucket == Bucket::Visibility {
             let blocked = &batch.occluded[slot.start..slot.start + slot.len];
-            for (&c, &blocked) in self.owners.iter().zip(blocked) {
-                let built = &mut self.built[c];
-                built.push(current[k]);
-                let failure = if blocked {
-                    Some(CorrectorFailure::Occluded)
-                } else {
-                    (1..k)
-                        .find(|&v| same_side_sign(built, v) != same_side_sign(current, v))
-                        .map(|vertex| CorrectorFailure::ChangedSide { vertex })
-                };
-                if let Some(failure) = failure {
-                    self.status[c] = Err(failure);
-                }
+            for (i, &blocked) in blocked.iter().enumerate() {
+                self.close_candidate(self.owners[i], current, blocked);
             }
             return;
         }
@@ -304,6 +305,33 @@ impl CorrectorPass {
                 Ok(v) => self.built[c].push(v),
                 Err(e) => self.status[c] = Err(e),
             }
+        }
+        if self.row == k && !self.visibility {
+            // No visibility row: the candidates end here, with the fixed end appended untested.
+            for c in 0..self.built.len() {
+                if self.status[c].is_ok() {
+                    self.close_candidate(c, current, false);
+                }
+            }
+            self.row += 1;
+        }
+    }
+
+    /// Appends the fixed end x_k to candidate `c` and refuses it if its last segment is `blocked` or
+    /// a vertex turned from reflection to transmission or back.
+    fn close_candidate(&mut self, c: usize, current: &[Vertex], blocked: bool) {
+        let k = current.len() - 1;
+        let built = &mut self.built[c];
+        built.push(current[k]);
+        let failure = if blocked {
+            Some(CorrectorFailure::Occluded)
+        } else {
+            (1..k)
+                .find(|&v| same_side_sign(built, v) != same_side_sign(current, v))
+                .map(|vertex| CorrectorFailure::ChangedSide { vertex })
+        };
+        if let Some(failure) = failure {
+            self.status[c] = Err(failure);
         }
     }
 }

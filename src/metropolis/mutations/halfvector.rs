@@ -1,12 +1,15 @@
 //! HSLT's half-vector space mutation (Kaplanyan, Hanika and Dachsbacher 2014, Sec. 5–6; digest 2.4–2.7):
 //! Möbius-shifted Phong steps of every inner vertex's half vector, sized by roughness and image-space
 //! stratification, a Newton walk there with x_0 and x_k fixed, weighed in half-vector measure f_A/|det J|.
-//! The walk's ray casts start from the camera or the light end (Sec. 5.1, digest 2.9, `TraceDirection`).
+//! The walk's ray casts start from the camera or the light end (Sec. 5.1, digest 2.9, `TraceDirection`),
+//! and it moves the whole path or a sub-chain between two rough vertices (`subchain`, improved HSLT).
 
 use glam::{DMat2, DVec2, DVec3};
 
 use super::super::chain::{Failure, Mutation, MutationStats, Proposal};
 use super::super::path_state::{PathContext, PathState};
+use super::subchain::walkable;
+pub use super::subchain::{sub_chains, Chain};
 use crate::manifold::{
     bandwidth_shares, frame_chart, invert_block, log_dirac_factor, path_constraints, path_etas,
     path_geometry, path_geometry_in_chart, step_sizes, walk_in_chart_counting_rays, LocalGeometry, StepSizes,
@@ -36,14 +39,6 @@ pub struct HalfVectorParams {
     /// Move a stretch x_b … x_c of the path with x_b and x_c held, chosen by `chains` (improved HSLT,
     /// Hanika et al. 2015; digest 2.11), instead of always the whole path (`--hslt-chains`).
     pub sub_chains: bool,
-}
-
-/// The stretch x_start … x_end of a path that one proposal moves: its inner vertices walk, its ends
-/// and everything outside it stay where they are. The whole path is start 0, end k.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Chain {
-    pub start: usize,
-    pub end: usize,
 }
 
 /// Which end of the path the Newton walk's corrector casts its rays from (paper Sec. 5.1: HSLT picks
@@ -186,6 +181,9 @@ impl Default for HalfVectorParams {
                 tolerance: 1e-4,
                 max_iterations: MAX_ITERATIONS,
                 min_step: MIN_STEP,
+                // Only the converged path's last segment is tested: intermediate iterates need not
+                // see the light, and a pass then casts one ray fewer (k - 1 instead of k).
+                visibility_every_pass: false,
                 ..WalkSettings::default()
             },
             direction: TraceDirection::Camera,
@@ -207,66 +205,6 @@ pub fn applicable(path: &[Vertex]) -> bool {
     let inner = &path[1..n - 1];
     inner.iter().all(walkable)
         && inner.iter().any(|v| !v.delta && matches!(v.class, ScatterClass::Glossy { .. }))
-}
-
-/// Whether vertex `i` of `path` can hold a chain's end: the camera, an emitter with a position, or a
-/// non-Dirac surface vertex (moving a Dirac vertex's neighbour breaks its specular constraint). The
-/// weight is how little the vertex's own scattering changes when its neighbour moves: 1 for the
-/// endpoints and diffuse vertices, the roughness α for glossy ones ([C13] weighs break-up vertices by
-/// roughness).
-fn anchor_weight(path: &[Vertex], i: usize) -> Option<f64> {
-    let v = &path[i];
-    if i == 0 {
-        return (v.kind == VertexKind::Camera).then_some(1.0);
-    }
-    if i == path.len() - 1 {
-        return (v.kind != VertexKind::InfiniteLight).then_some(1.0);
-    }
-    if v.kind != VertexKind::Surface || v.delta {
-        return None;
-    }
-    match v.class {
-        ScatterClass::Diffuse => Some(1.0),
-        ScatterClass::Glossy { alpha } => Some((alpha as f64).min(1.0)),
-        ScatterClass::Specular => None,
-    }
-}
-
-/// Whether an inner vertex can walk: a surface vertex that scatters through a non-Dirac lobe
-/// (perturbed) or is purely specular (Dirac, held at h = 0). `smooth` means the BSDF has a non-Dirac
-/// lobe; a Dirac vertex must be purely specular, so that holding h = 0 keeps it on its only lobe.
-fn walkable(v: &Vertex) -> bool {
-    v.kind == VertexKind::Surface && if v.delta { v.class == ScatterClass::Specular } else { v.smooth }
-}
-
-/// Every chain of `path` the sub-chain proposal may move, with its unnormalised weight: both ends
-/// anchors (`anchor_weight`), every inner vertex walkable and at least one glossy non-Dirac one. The
-/// weight is the product of the ends' weights, halved for every inner vertex beyond the first:
-/// shorter chains converge more often and cost fewer rays per corrector pass ([C13] likewise
-/// prefers short chains), and rough ends change the path's throughput least.
-pub fn sub_chains(path: &[Vertex]) -> Vec<(Chain, f64)> {
-    let n = path.len();
-    let mut out = Vec::new();
-    if n < 3 || path[0].kind != VertexKind::Camera {
-        return out;
-    }
-    for start in 0..n - 2 {
-        let Some(w_start) = anchor_weight(path, start) else { continue };
-        let mut glossy = false;
-        for end in start + 2..n {
-            let v = &path[end - 1];
-            if !walkable(v) {
-                break;
-            }
-            glossy |= !v.delta && matches!(v.class, ScatterClass::Glossy { .. });
-            let Some(w_end) = anchor_weight(path, end) else { continue };
-            if glossy {
-                let weight = w_start * w_end * 0.5f64.powi((end - start - 2) as i32);
-                out.push((Chain { start, end }, weight));
-            }
-        }
-    }
-    out
 }
 
 /// A path prepared for proposing from it: its half vectors, log|det J| and per-vertex proposal steps.

@@ -13,6 +13,7 @@ pub mod lens;
 mod manifold;
 pub mod multichain;
 pub mod perturb;
+pub mod subchain;
 
 pub use manifold::ManifoldPerturbation;
 
