@@ -124,6 +124,12 @@ impl BlockTridiagonal {
     /// Block Thomas factorisation (no pivoting: the diagonal blocks of J dominate in all but
     /// degenerate configurations, and those are exactly what the singularity test is there to reject).
     pub fn factor(&self) -> Result<BlockLu, Singular> {
+        self.clone().into_factor()
+    }
+
+    /// `factor`, keeping this system inside the factorisation rather than a copy of it (for callers
+    /// done with J once it is factored, like each Newton iteration of the walk).
+    pub fn into_factor(self) -> Result<BlockLu, Singular> {
         let n = self.len();
         assert!(self.a.len() == n && self.c.len() == n, "a, b and c need one block per row");
         let mut lambda_inv = Vec::with_capacity(n);
@@ -145,7 +151,7 @@ impl BlockTridiagonal {
             lambda_inv.push(inv);
             l.push(l_i);
         }
-        Ok(BlockLu { system: self.clone(), lambda_inv, l, log_det: LogDet { sign, ln_abs } })
+        Ok(BlockLu { system: self, lambda_inv, l, log_det: LogDet { sign, ln_abs } })
     }
 }
 

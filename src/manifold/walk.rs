@@ -339,7 +339,7 @@ impl WalkState {
             Ok(constraints) => constraints.jacobian,
             Err(e) => return Some(Err(e.into())),
         };
-        let lu = match jacobian.factor() {
+        let lu = match jacobian.into_factor() {
             Ok(lu) => lu,
             Err(s) => return Some(Err(WalkError::Singular { row: s.row })),
         };

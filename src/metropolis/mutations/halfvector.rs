@@ -269,7 +269,7 @@ impl PreparedPath {
             return Some(ChartCoordinates { h: self.h.clone(), log_det: self.log_det });
         }
         let constraints = path_constraints(&path_geometry_in_chart(path, Some(chart)), &self.eta).ok()?;
-        let log_det = constraints.jacobian.factor().ok()?.log_det().ln_abs;
+        let log_det = constraints.jacobian.into_factor().ok()?.log_det().ln_abs;
         log_det.is_finite().then_some(ChartCoordinates { h: constraints.h, log_det })
     }
 }
@@ -335,7 +335,7 @@ impl HalfVectorMutation {
         let eta = path_etas(scene, path);
         let geometry = path_geometry(path);
         let constraints = path_constraints(&geometry, &eta).map_err(|_| "degenerate")?;
-        let lu = constraints.jacobian.factor().map_err(|_| "singular")?;
+        let lu = constraints.jacobian.into_factor().map_err(|_| "singular")?;
         let log_det = lu.log_det().ln_abs;
         if !log_det.is_finite() {
             return Err("singular");
