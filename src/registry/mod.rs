@@ -98,9 +98,10 @@ impl IntegratorKind {
     /// `DirectPass::for_path_space`). The HSLT mixtures add the half-vector lens and caustic
     /// perturbations (HSLT's parameterisation in Veach's two perturbations; the caustic one halved
     /// the chains' error on the rings' floor caustics, docs/benchmarks.md, session 14) and give the
-    /// half-vector mutation a tenth of the proposals: one costs about as much time as 50 lens
+    /// half-vector mutation a tenth of the proposals: one cost about as much time as 50 lens
     /// perturbations (jewelry's rings, 2 threads), so at weight 1 it took 90% of the time and the
-    /// rings' relative MSE was 2.2× that at 0.1 (docs/benchmarks.md, session 8). The large step
+    /// rings' relative MSE was 2.2× that at 0.1 (docs/benchmarks.md, session 8). At 18 lens
+    /// perturbations' cost (session 15) weight 1 still loses on rings and jewelry. The large step
     /// makes `LARGE_STEP_SHARE` of the proposals.
     pub fn default_mutations(self) -> Vec<(MutationKind, f64)> {
         use MutationKind::*;
