@@ -70,7 +70,7 @@ pub struct OurRun {
     pub peak_memory_bytes: u64,
 }
 
-/// The interpreter to try and why it was chosen (for the report).
+/// The interpreter to try: `explicit`, else `$HSLT_MITSUBA_PYTHON`, else `python3`.
 pub fn python_for_mitsuba(explicit: Option<&Path>) -> PathBuf {
     explicit
         .map(Path::to_path_buf)
@@ -170,10 +170,4 @@ pub fn run_ours(
     let json: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&stats)?)?;
     let field = |k: &str| json.get(k).and_then(|v| v.as_u64()).unwrap_or(0);
     Ok(OurRun { process_seconds, samples: field("samples"), peak_memory_bytes: field("peak_memory_bytes") })
-}
-
-/// The median of `values` (the upper one of the middle two for an even count).
-pub fn median(mut values: Vec<f64>) -> f64 {
-    values.sort_by(f64::total_cmp);
-    values.get(values.len() / 2).copied().unwrap_or(f64::NAN)
 }

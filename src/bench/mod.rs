@@ -19,6 +19,12 @@ use std::path::Path;
 use std::sync::Arc;
 use std::time::Instant;
 
+/// The median of `values` (the upper of the middle two for an even count), sorting them in place.
+pub fn median(values: &mut [f64]) -> f64 {
+    values.sort_by(f64::total_cmp);
+    values[values.len() / 2]
+}
+
 /// Rays per corrector bundle: a Newton step casts a handful of rays from one vertex. 16 is the
 /// reference size; 8 and 64 show how the packet gain depends on it.
 const BUNDLE_SIZES: [usize; 3] = [8, 16, 64];

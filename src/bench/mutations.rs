@@ -4,6 +4,7 @@
 //! the walk traced from the chosen end (`--direction`) and what the proposals gave (acceptance, failures);
 //! then the proposals' forward walks alone, G walks in flight sharing each corrector query (issue #7).
 
+use super::median;
 use crate::accel::{Hit, RayQuery};
 use crate::geometry::Ray;
 use crate::integrators::Bdpt;
@@ -261,11 +262,6 @@ fn replay(accel: &dyn RayQuery, batches: &[(bool, Vec<Ray>)], batched: bool) -> 
 fn median_of(passes: &mut [Pass]) -> &Pass {
     passes.sort_by(|a, b| a.seconds.total_cmp(&b.seconds));
     &passes[passes.len() / 2]
-}
-
-fn median(values: &mut [f64]) -> f64 {
-    values.sort_by(f64::total_cmp);
-    values[values.len() / 2]
 }
 
 /// Proposes the HSLT mutation once from each of `proposals` stationary paths the mutation applies to,

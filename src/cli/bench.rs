@@ -130,7 +130,8 @@ pub(super) fn run_bench(args: BenchArgs) -> anyhow::Result<i32> {
 
 /// Our whole render process against Mitsuba's render alone, alternating, medians of `args.repeats`.
 fn compare_with_mitsuba(args: &BenchArgs, scene: &crate::scene::Scene) -> anyhow::Result<()> {
-    use crate::bench::mitsuba::{median, probe, python_for_mitsuba, run_mitsuba, run_ours};
+    use crate::bench::median;
+    use crate::bench::mitsuba::{probe, python_for_mitsuba, run_mitsuba, run_ours};
     let wanted: Vec<&str> =
         args.mitsuba_variants.split(',').map(str::trim).filter(|v| !v.is_empty()).collect();
     if wanted.is_empty() {
@@ -165,7 +166,7 @@ fn compare_with_mitsuba(args: &BenchArgs, scene: &crate::scene::Scene) -> anyhow
     let _ = std::fs::remove_dir_all(&scratch);
     result?;
     let mib = |b: u64| b as f64 / (1024.0 * 1024.0);
-    let our_secs = median(ours.iter().map(|r| r.process_seconds).collect());
+    let our_secs = median(&mut ours.iter().map(|r| r.process_seconds).collect::<Vec<_>>());
     let our_peak = ours.iter().map(|r| r.peak_memory_bytes).max().unwrap_or(0);
     let samples = ours[0].samples;
     println!();
@@ -187,9 +188,9 @@ fn compare_with_mitsuba(args: &BenchArgs, scene: &crate::scene::Scene) -> anyhow
         mib(our_peak)
     );
     for (runs, variant) in theirs.iter().zip(&variants) {
-        let render = median(runs.iter().map(|r| r.render_seconds).collect());
-        let first = median(runs.iter().map(|r| r.first_render_seconds).collect());
-        let setup = median(runs.iter().map(|r| r.import_seconds + r.load_seconds).collect());
+        let render = median(&mut runs.iter().map(|r| r.render_seconds).collect::<Vec<_>>());
+        let first = median(&mut runs.iter().map(|r| r.first_render_seconds).collect::<Vec<_>>());
+        let setup = median(&mut runs.iter().map(|r| r.import_seconds + r.load_seconds).collect::<Vec<_>>());
         let peak = runs.iter().map(|r| r.peak_memory_bytes).max().unwrap_or(0);
         let their_samples = runs[0].samples;
         println!(

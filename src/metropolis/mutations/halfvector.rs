@@ -16,7 +16,7 @@ use crate::manifold::{
     WalkError, WalkResult, WalkSettings,
 };
 use crate::path::{PathView, ScatterClass, Vertex, VertexKind};
-use crate::sampling::Sampler;
+use crate::sampling::{Distribution1D, Sampler};
 use crate::scene::Scene;
 
 /// How far the walk back from Y may land from X's inner vertices, relative to the shorter segment at
@@ -439,17 +439,9 @@ impl<'a> Mutation<PathState, PathContext<'a>> for HalfVectorMutation {
             // No draw for a single choice, so whole-path proposals use the random stream as before.
             [(only, _)] => *only,
             _ => {
-                let total: f64 = chains.iter().map(|(_, w)| w).sum();
-                let mut u = rng.next_f64() * total;
-                let mut pick = chains[chains.len() - 1].0;
-                for (c, w) in &chains {
-                    if u < *w {
-                        pick = *c;
-                        break;
-                    }
-                    u -= w;
-                }
-                pick
+                let weights: Vec<f64> = chains.iter().map(|(_, w)| *w).collect();
+                let pick = Distribution1D::new(&weights).ok_or(Failure::Failed("degenerate"))?;
+                chains[pick.sample(rng.next_f64() as f32).0].0
             }
         };
         let log_pmf_x = self.chain_log_pmf(x, chain).ok_or(Failure::Failed("degenerate"))?;
