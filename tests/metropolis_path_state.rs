@@ -181,6 +181,81 @@ fn seed_draws_follow_the_weighted_contributions() {
     );
 }
 
+/// The seeding pass keeps one running sum per group of samples, and a draw replays its group: the
+/// path drawn for u must be the strategy at which the running sum over every strategy of the pass
+/// passes u · Σ, exactly as with a sum kept per strategy; a pass run in two parts (a time-limited
+/// pass extends itself) must give the same b and the same draws as one pass.
+#[test]
+fn seed_draws_are_the_strategies_where_the_running_sum_passes_u() {
+    let scene = scene("scenes/cornell-box/scene.xml");
+    let bdpt = bdpt(&scene);
+    let (n, seed, cut) = (3000, 5, 1001);
+    let cancel = AtomicBool::new(false);
+    let whole = PathSeeds::run(&scene, &bdpt, seed, n, &cancel);
+    let mut parts = PathSeeds::run_range(&scene, &bdpt, seed, 0..cut, &cancel);
+    parts.append(PathSeeds::run_range(&scene, &bdpt, seed, cut..n, &cancel));
+    let mut running = Vec::new();
+    let mut sum = 0.0;
+    for i in 0..n {
+        let mut ctx = PssContext::new(&scene, &bdpt, Pssmlt::seed_pss(seed, i));
+        let (_, sub) = ctx.evaluate_with_paths();
+        for c in ctx.contributions() {
+            let y = luminance(c.value) as f64;
+            if y > 0.0 && y.is_finite() {
+                sum += y;
+                running.push((sum, c.path(&sub)));
+            }
+        }
+    }
+    for (name, seeds) in [("one pass", &whole), ("two parts", &parts)] {
+        assert_eq!(seeds.samples, n, "{name}");
+        assert_eq!(seeds.candidates(), running.len(), "{name}");
+        assert!(
+            (seeds.b - sum / n as f64).abs() <= 1e-12 * seeds.b,
+            "{name}: b {} against {}",
+            seeds.b,
+            sum / n as f64
+        );
+        let largest = running.windows(2).map(|w| w[1].0 - w[0].0).fold(running[0].0, f64::max);
+        assert!((seeds.largest_share() - largest / sum).abs() <= 1e-9, "{name}: largest share");
+        for k in 0..300 {
+            let u = (k as f64 + 0.5) / 300.0;
+            let expected = &running[running.partition_point(|(c, _)| *c <= u * sum)].1;
+            let drawn = seeds.draw(&scene, &bdpt, seed, u).expect("a drawn seed replays");
+            let positions = |p: &[Vertex]| p.iter().map(|v| v.p).collect::<Vec<_>>();
+            assert_eq!(positions(&drawn.vertices), positions(expected), "{name}: draw at u = {u}");
+        }
+    }
+}
+
+/// A time-limited path-space render runs its seeding pass for its share of the time (`--seed-share`),
+/// past the fixed-work default, and an explicit `--seed-paths` is run exactly.
+#[test]
+fn a_time_limited_seeding_pass_runs_for_its_share_of_the_time() {
+    let scene = scene("scenes/cornell-box/scene.xml");
+    let run = |settings: MltSettings, options: RenderOptions| {
+        let mlt = PathMlt::new("mlt", bdpt(&scene), settings);
+        let out = mlt.render(&scene, &options, &AtomicBool::new(false));
+        let value = |key: &str| out.metadata.iter().find(|(k, _)| k == key).map(|(_, v)| v.clone());
+        let paths: usize = value("hslt.mlt.seed_paths").expect("seed paths recorded").parse().unwrap();
+        let seconds: f64 = value("hslt.mlt.seconds_seeding").expect("seeding time recorded").parse().unwrap();
+        (paths, seconds)
+    };
+    let mixture = || MltSettings::for_technique(vec![(MutationKind::Bidirectional, 1.0)]);
+    let timed =
+        RenderOptions { time_limit: Some(std::time::Duration::from_secs(3)), seed: 2, ..Default::default() };
+    let default_paths = hslt::metropolis::mlt::default_seed_paths(32 * 32, u64::MAX);
+    let (paths, seconds) = run(MltSettings { seed_share: 0.5, ..mixture() }, timed.clone());
+    assert!(
+        paths > default_paths,
+        "{paths} seed paths in {seconds} s, no more than the default {default_paths}"
+    );
+    // The pass sizes its last batch by its rate so far, so it ends near its budget of 1.5 s.
+    assert!((1.0..3.0).contains(&seconds), "the seeding pass took {seconds} s for a budget of 1.5 s");
+    let (paths, _) = run(MltSettings { seed_paths: Some(70_000), ..mixture() }, timed);
+    assert_eq!(paths, 70_000);
+}
+
 /// Light trapped in the jewelry scene's diamond by total internal reflection makes BDPT paths of
 /// dozens of vertices whose f in product area measure (one 1/d² and one near-specular BSDF peak per
 /// vertex) overflows f32. Every one must still become a chain state, with f carried as colour · scale:

@@ -72,8 +72,8 @@ pub fn scene_hash(path: &Path, defines: &[(String, String)]) -> anyhow::Result<S
 pub fn image_settings(args: &RenderArgs) -> String {
     format!(
         "integrator={:?} spp={:?} time={:?} seed={} max_depth={:?} min_depth={} mis={} seed_paths={:?} \
-         chains={:?} mutations={:?} lambda={} specular_threshold={} hslt_direction={} hslt_chains={} \
-         p_large={} direct_samples={:?} direct_share={:?} accel={}",
+         seed_share={:?} chains={:?} mutations={:?} lambda={} specular_threshold={} hslt_direction={} \
+         hslt_chains={} p_large={} direct_samples={:?} direct_share={:?} accel={}",
         args.integrator,
         args.spp,
         args.time,
@@ -82,6 +82,7 @@ pub fn image_settings(args: &RenderArgs) -> String {
         args.min_depth,
         args.mis,
         args.seed_paths,
+        args.seed_share,
         args.chains,
         args.mutations,
         args.lambda,

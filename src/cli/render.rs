@@ -68,10 +68,16 @@ pub struct RenderArgs {
     #[arg(long, default_value = "power", value_parser = ["power", "balance"])]
     pub mis: String,
     /// Metropolis: independent BDPT samples in the seeding pass that estimates the normalisation and
-    /// starts the chains (default: PSSMLT 4 per pixel, path-space methods 16 per pixel; at least 16384
-    /// and 65536, at most 1048576).
+    /// starts the chains (default: PSSMLT 4 per pixel, at least 16384; path-space methods one per 16
+    /// mutations, at least 16 per pixel and 65536, at most 2^24, and with --time as many as fit in a
+    /// fifth of it).
     #[arg(long, value_name = "N")]
     pub seed_paths: Option<usize>,
+    /// Path-space Metropolis (mlt, memlt, hslt, hslt+mlt) with --time: the fraction of it the seeding
+    /// pass runs for; the chains keep the energy of every path family where the seeding pass put it, so
+    /// a thin pass leaves blotches [default: 0.2]
+    #[arg(long, value_name = "F", conflicts_with = "seed_paths")]
+    pub seed_share: Option<f64>,
     /// Metropolis: number of Markov chains, fixed so the image does not depend on the thread count
     /// (default: 64 for PSSMLT, 1024 for the path-space methods).
     #[arg(long, value_name = "N")]
@@ -253,6 +259,18 @@ pub(super) fn run_render(args: RenderArgs) -> anyhow::Result<i32> {
         bail!("--p-large must be between 0 and 1");
     }
     settings.pssmlt.seed_paths = args.seed_paths;
+    if let Some(f) = args.seed_share {
+        if !kind.is_path_space() {
+            bail!("--seed-share applies to the path-space integrators (mlt, memlt, hslt, hslt+mlt)");
+        }
+        if !(0.0..1.0).contains(&f) {
+            bail!("--seed-share must be at least 0 and below 1");
+        }
+        if args.time.is_none() {
+            bail!("--seed-share needs --time (without a time limit, size the pass with --seed-paths)");
+        }
+        settings.seed_share = Some(f);
+    }
     if let Some(chains) = args.chains {
         settings.pssmlt.chains = chains;
         settings.path_chains = Some(chains);

@@ -46,6 +46,11 @@ pub(super) fn print_metropolis_summary(meta: &Metadata) {
                 crate::metropolis::chain::STUCK_STREAK
             );
         }
+        if let Some(note) =
+            seed_concentration_note(get("hslt.mlt.seed_largest_share"), get("hslt.mlt.chains"))
+        {
+            eprintln!("note: {note}");
+        }
         for (k, v) in meta {
             let Some(name) = k.strip_prefix("hslt.mlt.").and_then(|r| r.strip_suffix(".acceptance")) else {
                 continue;
@@ -79,5 +84,38 @@ pub(super) fn print_metropolis_summary(meta: &Metadata) {
             }
             eprintln!("{line}");
         }
+    }
+}
+
+/// Chains on one start path at which the summary says so: the image then holds that seed path's
+/// energy near it unless the mutations can carry the chains away.
+const CONCENTRATED_CHAINS: f64 = 8.0;
+
+/// A note when many chains start on the same seed path (share × chains of them, as drawn).
+fn seed_concentration_note(share: Option<&str>, chains: Option<&str>) -> Option<String> {
+    let share: f64 = share?.parse().ok()?;
+    let chains: f64 = chains?.parse().ok()?;
+    let on_one = share * chains;
+    (on_one >= CONCENTRATED_CHAINS).then(|| {
+        format!(
+            "one seed path carries {:.1}% of the light, so about {on_one:.0} of {chains:.0} chains start on it; \
+             where the mutations cannot move them (near-specular paths) the image keeps that energy there \
+             (a longer seeding pass, --seed-share or --seed-paths, spreads it thinner)",
+            100.0 * share
+        )
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::seed_concentration_note;
+
+    #[test]
+    fn the_note_appears_only_when_many_chains_share_a_start() {
+        assert_eq!(seed_concentration_note(Some("1.0e-3"), Some("1024")), None);
+        let note = seed_concentration_note(Some("4.3e-2"), Some("1024")).expect("44 chains on one path");
+        assert!(note.contains("4.3%") && note.contains("about 44 of 1024"), "{note}");
+        assert_eq!(seed_concentration_note(None, Some("1024")), None);
+        assert_eq!(seed_concentration_note(Some("nan?"), Some("1024")), None);
     }
 }

@@ -10,7 +10,7 @@ use super::mutations::largestep::{self, StrategyPmf};
 use super::mutations::{self, MutationKind, MutationSettings};
 use super::path_state::{PathContext, PathState};
 use super::pssmlt::{acceptance_extra, sample_cdf, PssContext, Pssmlt};
-use crate::integrators::Bdpt;
+use crate::integrators::{bdpt::Contribution, Bdpt};
 use crate::render::{Film, Integrator, RenderOptions, RenderOutput, RenderStats, SampleCounters, Work};
 use crate::sampling::Sampler;
 use crate::scene::Scene;
@@ -29,8 +29,12 @@ const START_ATTEMPTS: usize = 16;
 /// Path-space MLT parameters (CLI: `--mutations`, `--seed-paths`, `--chains`, `--lambda`).
 #[derive(Clone, Debug, PartialEq)]
 pub struct MltSettings {
-    /// Independent BDPT samples of the seeding pass; `None` = `default_seed_paths`.
+    /// Independent BDPT samples of the seeding pass; `None` = `default_seed_paths`, and with a time
+    /// limit as many more as fit in `seed_share` of it.
     pub seed_paths: Option<usize>,
+    /// The fraction of a time-limited render the seeding pass runs for when `seed_paths` is `None`
+    /// (CLI: `--seed-share`; default `SEED_TIME_SHARE`).
+    pub seed_share: f64,
     pub chains: usize,
     /// The mixture: each mutation with its selection weight.
     pub mutations: Vec<(MutationKind, f64)>,
@@ -48,6 +52,7 @@ impl MltSettings {
     pub fn for_technique(mutations: Vec<(MutationKind, f64)>) -> MltSettings {
         MltSettings {
             seed_paths: None,
+            seed_share: SEED_TIME_SHARE,
             chains: DEFAULT_PATH_CHAINS,
             mutations,
             target: TargetFunction::Luminance,
@@ -63,13 +68,31 @@ impl MltSettings {
 /// PSSMLT's, these chains have no large steps to spread them out.
 pub const DEFAULT_PATH_CHAINS: usize = 1024;
 
-/// Seed paths of a path-space technique unless `--seed-paths` says otherwise: sixteen per pixel,
-/// between 65 536 and 2^20. Path-space chains have no independent proposals to refine b with, so the
-/// seeding pass alone sets the image's scale; on the jewelry scene 49 152 seed paths left it 4% high,
-/// 10^6 within 1%, at about a second of BDPT time.
-pub fn default_seed_paths(pixels: usize) -> usize {
-    (16 * pixels).clamp(65_536, 1 << 20)
+/// Seed paths of a path-space technique with a fixed amount of work, unless `--seed-paths` says
+/// otherwise: one per 16 mutations and at least sixteen per pixel and 65 536, at most 2^24 (16 MiB of
+/// seeding state, `SEED_GROUP`). Path-space chains mix slowly between families of paths, so the seeding
+/// pass's estimate of how much light each family carries is largely what the image keeps: its
+/// fireflies become the chains' blotches (`PathSeeds::largest`). On nested-glass (MEMLT, 48×36, 60 s)
+/// 2^16 seed paths put 4.3% of b on one path and 44 of 1024 chains on it, and the 6×6-block relative
+/// MSE was 6.9e-2; 2^20 gave 8.5e-3 for 2.5 s of seeding (docs/rough-glass.md).
+/// `mutations` is `u64::MAX` for a render with only a time limit, which takes the minimum and then
+/// seeds for `SEED_TIME_SHARE` of its time instead.
+pub fn default_seed_paths(pixels: usize, mutations: u64) -> usize {
+    let per_mutations = if mutations == u64::MAX { 0 } else { (mutations / 16).min(1 << 24) as usize };
+    (16 * pixels).max(per_mutations).clamp(65_536, 1 << 24)
 }
+
+/// Share of a time-limited render (`--time`, no `--seed-paths`) that the seeding pass runs for, after
+/// the `default_seed_paths` minimum: a seed sample costs about as much as a few mutations, and the
+/// chains cannot make up for a thin seeding pass (`default_seed_paths`).
+pub const SEED_TIME_SHARE: f64 = 0.2;
+
+/// Seed samples per extension of a time-limited seeding pass, at least.
+const SEED_EXTENSION_MIN: usize = 2 * SEED_CHUNK;
+
+/// Most seed samples a time-limited pass extends to: 2^28 keep 256 MiB of group sums (`SEED_GROUP`),
+/// about ten minutes of seeding on two cores.
+const SEED_PATHS_MAX: usize = 1 << 28;
 
 pub struct PathMlt {
     pub name: &'static str,
@@ -77,28 +100,68 @@ pub struct PathMlt {
     pub settings: MltSettings,
 }
 
-/// One seed-pass strategy that can start a chain: its sample, its index among the sample's
-/// contributions, and the running sum of luminance up to and including it.
-#[derive(Clone, Copy, Debug)]
-struct Candidate {
-    sample: usize,
-    contribution: usize,
+/// Seed samples per group: the seeding pass keeps one running sum per group, not per strategy, and a
+/// draw replays the samples of its group to find the strategy (at most this many BDPT samples).
+/// Memory is then about one byte per seed sample, so the pass can be long (`SEED_TIME_SHARE`).
+const SEED_GROUP: usize = 16;
+
+/// A seed strategy counted by the pass: its luminance if it can start a chain (positive and finite),
+/// or why not. Pass and replay must classify alike, so both use this.
+fn candidate_luminance(c: &Contribution) -> Result<f64, ()> {
+    let y = luminance(c.value) as f64;
+    if !(y.is_finite() && c.value.min_element() >= 0.0) {
+        Err(())
+    } else {
+        Ok(y)
+    }
 }
 
 /// The seeding pass: independent BDPT samples (replayable by index) and the luminance of each of their
 /// weighted strategies. b, the mean of the per-sample sums, is the integral of luminance(f) over path
 /// space: the normalisation of the chains' image.
 pub struct PathSeeds {
-    candidates: Vec<Candidate>,
+    /// First sample index of each group and the running sum of luminance up to the group's end.
+    group_first: Vec<usize>,
     cdf: Vec<f64>,
+    /// One past the last sample index of the pass.
+    end: usize,
+    candidates: usize,
     pub samples: usize,
     pub b: f64,
     /// Σ luminance of the weighted strategies by edge count k (= vertices − 1) and light-side vertex
     /// count s (`by_strategy[k][s]`): which lengths carry the light and which of BDPT's strategies make
     /// them well, which the large step proposes from (`largestep::StrategyPmf`).
     pub by_strategy: Vec<Vec<f64>>,
+    /// The largest luminance one strategy of one sample carried. Chains start on paths in proportion
+    /// to these, so a seed path holding a share q of the sum starts about q · chains of them, and where
+    /// the mutations cannot carry them away (near-specular paths, `docs/rough-glass.md`) the image keeps
+    /// that much energy there: the seeding pass's fireflies become the chains' blotches.
+    pub largest: f64,
     pub rays: SampleCounters,
     pub invalid: u64,
+}
+
+/// What one parallel chunk of the seeding pass found.
+#[derive(Default)]
+struct SeedChunk {
+    /// (first sample, Σ luminance) per group.
+    groups: Vec<(usize, f64)>,
+    by_strategy: Vec<Vec<f64>>,
+    candidates: usize,
+    largest: f64,
+    rays: SampleCounters,
+    invalid: u64,
+}
+
+fn add_to_histogram(histogram: &mut Vec<Vec<f64>>, edges: usize, split: usize, y: f64) {
+    if histogram.len() <= edges {
+        histogram.resize(edges + 1, Vec::new());
+    }
+    let splits = &mut histogram[edges];
+    if splits.len() <= split {
+        splits.resize(split + 1, 0.0);
+    }
+    splits[split] += y;
 }
 
 impl PathSeeds {
@@ -114,32 +177,38 @@ impl PathSeeds {
         indices: std::ops::Range<usize>,
         cancel: &AtomicBool,
     ) -> PathSeeds {
-        type Chunk = (Vec<(Candidate, f64, (usize, usize))>, SampleCounters, u64, f64);
         let (first, n) = (indices.start, indices.len());
-        let chunks: Vec<Chunk> = (0..n.div_ceil(SEED_CHUNK))
+        let chunks: Vec<SeedChunk> = (0..n.div_ceil(SEED_CHUNK))
             .into_par_iter()
             .map(|chunk| {
-                let mut out: Chunk = (Vec::new(), SampleCounters::default(), 0, 0.0);
+                let mut out = SeedChunk::default();
                 if cancel.load(Ordering::Relaxed) {
                     return out;
                 }
-                for i in first + chunk * SEED_CHUNK..first + ((chunk + 1) * SEED_CHUNK).min(n) {
+                let chunk_end = first + ((chunk + 1) * SEED_CHUNK).min(n);
+                for i in first + chunk * SEED_CHUNK..chunk_end {
+                    if (i - first) % SEED_GROUP == 0 {
+                        out.groups.push((i, 0.0));
+                    }
                     let mut ctx = PssContext::new(scene, bdpt, Pssmlt::seed_pss(seed, i));
                     let _ = ctx.evaluate();
-                    out.1 += ctx.counters;
-                    for (j, c) in ctx.contributions().iter().enumerate() {
-                        let y = luminance(c.value) as f64;
-                        if !(y.is_finite() && c.value.min_element() >= 0.0) {
-                            out.2 += 1;
-                        } else if y > 0.0 {
-                            out.3 += y;
-                            // `Contribution::path` adds the environment vertex an s = 0 path escaped to.
-                            let env = usize::from(c.s == 0 && c.endpoint.is_some());
-                            let edges = (c.s + c.t + env).saturating_sub(1);
-                            // The large step reaches an environment by sampling it (s = 1), never by
-                            // an eye walk hitting it.
-                            let split = c.s.max(env);
-                            out.0.push((Candidate { sample: i, contribution: j }, y, (edges, split)));
+                    out.rays += ctx.counters;
+                    let group = &mut out.groups.last_mut().expect("a group per sample").1;
+                    for c in ctx.contributions() {
+                        match candidate_luminance(c) {
+                            Err(()) => out.invalid += 1,
+                            Ok(y) if y > 0.0 => {
+                                *group += y;
+                                out.candidates += 1;
+                                out.largest = out.largest.max(y);
+                                // `Contribution::path` adds the environment vertex an s = 0 path escaped to.
+                                let env = usize::from(c.s == 0 && c.endpoint.is_some());
+                                let edges = (c.s + c.t + env).saturating_sub(1);
+                                // The large step reaches an environment by sampling it (s = 1), never
+                                // by an eye walk hitting it.
+                                add_to_histogram(&mut out.by_strategy, edges, c.s.max(env), y);
+                            }
+                            Ok(_) => {}
                         }
                     }
                 }
@@ -147,29 +216,31 @@ impl PathSeeds {
             })
             .collect();
         let mut seeds = PathSeeds {
-            candidates: Vec::new(),
+            group_first: Vec::new(),
             cdf: Vec::new(),
+            end: first + n,
+            candidates: 0,
             samples: n,
             b: 0.0,
             by_strategy: Vec::new(),
+            largest: 0.0,
             rays: SampleCounters::default(),
             invalid: 0,
         };
         let mut sum = 0.0;
-        for (candidates, rays, invalid, _) in chunks {
-            seeds.rays += rays;
-            seeds.invalid += invalid;
-            for (c, y, (edges, split)) in candidates {
+        for chunk in chunks {
+            seeds.rays += chunk.rays;
+            seeds.invalid += chunk.invalid;
+            seeds.candidates += chunk.candidates;
+            seeds.largest = seeds.largest.max(chunk.largest);
+            for (edges, splits) in chunk.by_strategy.iter().enumerate() {
+                for (split, &y) in splits.iter().enumerate() {
+                    add_to_histogram(&mut seeds.by_strategy, edges, split, y);
+                }
+            }
+            for (group_first, y) in chunk.groups {
                 sum += y;
-                if seeds.by_strategy.len() <= edges {
-                    seeds.by_strategy.resize(edges + 1, Vec::new());
-                }
-                let splits = &mut seeds.by_strategy[edges];
-                if splits.len() <= split {
-                    splits.resize(split + 1, 0.0);
-                }
-                splits[split] += y;
-                seeds.candidates.push(c);
+                seeds.group_first.push(group_first);
                 seeds.cdf.push(sum);
             }
         }
@@ -177,18 +248,107 @@ impl PathSeeds {
         seeds
     }
 
-    /// Number of strategies with a positive contribution.
-    pub fn candidates(&self) -> usize {
-        self.candidates.len()
+    /// Adds the pass `more`, whose samples must directly follow this one's (a time-limited pass runs
+    /// in parts, `extend_seeds`).
+    pub fn append(&mut self, more: PathSeeds) {
+        assert!(more.group_first.first().is_none_or(|&f| f == self.end), "seed passes must be contiguous");
+        let sum = self.cdf.last().copied().unwrap_or(0.0);
+        self.group_first.extend(more.group_first);
+        self.cdf.extend(more.cdf.iter().map(|c| c + sum));
+        self.end += more.samples;
+        self.candidates += more.candidates;
+        self.samples += more.samples;
+        self.b = if self.samples > 0 {
+            self.cdf.last().copied().unwrap_or(0.0) / self.samples as f64
+        } else {
+            0.0
+        };
+        for (edges, splits) in more.by_strategy.iter().enumerate() {
+            for (split, &y) in splits.iter().enumerate() {
+                add_to_histogram(&mut self.by_strategy, edges, split, y);
+            }
+        }
+        self.largest = self.largest.max(more.largest);
+        self.rays += more.rays;
+        self.invalid += more.invalid;
     }
 
-    /// A path drawn in proportion to its weighted contribution (replayed from its seed sample).
+    /// The share of b's sum on the single heaviest seed path (0 when there is none).
+    pub fn largest_share(&self) -> f64 {
+        let total = self.b * self.samples as f64;
+        if total > 0.0 {
+            self.largest / total
+        } else {
+            0.0
+        }
+    }
+
+    /// Number of strategies with a positive contribution.
+    pub fn candidates(&self) -> usize {
+        self.candidates
+    }
+
+    /// A path drawn in proportion to its weighted contribution (replayed from its seed sample): the
+    /// group holding u · Σ, then the strategy within it where the running sum passes that point.
     pub fn draw(&self, scene: &Scene, bdpt: &Bdpt, seed: u64, u: f64) -> Option<PathState> {
-        let c = self.candidates[sample_cdf(&self.cdf, u)?];
-        let mut ctx = PssContext::new(scene, bdpt, Pssmlt::seed_pss(seed, c.sample));
+        let g = sample_cdf(&self.cdf, u)?;
+        let before = if g > 0 { self.cdf[g - 1] } else { 0.0 };
+        let mut rest = u * self.cdf.last()? - before;
+        let next = self.group_first.get(g + 1).copied().unwrap_or(self.end);
+        let group_end = next.min(self.group_first[g] + SEED_GROUP);
+        // The last positive strategy of the group, should rounding leave `rest` beyond the group's sum.
+        let mut last = None;
+        'samples: for i in self.group_first[g]..group_end {
+            let mut ctx = PssContext::new(scene, bdpt, Pssmlt::seed_pss(seed, i));
+            let _ = ctx.evaluate();
+            for (j, c) in ctx.contributions().iter().enumerate() {
+                if let Ok(y) = candidate_luminance(c) {
+                    if y > 0.0 {
+                        last = Some((i, j));
+                        rest -= y;
+                        if rest < 0.0 {
+                            break 'samples;
+                        }
+                    }
+                }
+            }
+        }
+        let (i, j) = last?;
+        let mut ctx = PssContext::new(scene, bdpt, Pssmlt::seed_pss(seed, i));
         let (_, sub) = ctx.evaluate_with_paths();
-        let contribution = ctx.contributions().get(c.contribution)?;
+        let contribution = ctx.contributions().get(j)?;
         PathState::new(scene, contribution.path(&sub))
+    }
+}
+
+/// Runs more seed samples after `seeds` until `budget` has passed since `started`, in batches sized by
+/// the rate so far (so the pass ends close to its budget), then appends them.
+fn extend_seeds(
+    seeds: &mut PathSeeds,
+    scene: &Scene,
+    bdpt: &Bdpt,
+    seed: u64,
+    budget: std::time::Duration,
+    started: Instant,
+    cancel: &AtomicBool,
+) {
+    while !cancel.load(Ordering::Relaxed) {
+        let elapsed = started.elapsed();
+        let Some(left) = budget.checked_sub(elapsed) else { break };
+        let rate = seeds.samples as f64 / elapsed.as_secs_f64().max(1e-6);
+        let room = SEED_PATHS_MAX.saturating_sub(seeds.samples);
+        let batch =
+            (rate * left.as_secs_f64()).min(seeds.samples.max(SEED_EXTENSION_MIN).min(room) as f64) as usize;
+        if batch < SEED_EXTENSION_MIN {
+            break;
+        }
+        let first = seeds.end;
+        let more = PathSeeds::run_range(scene, bdpt, seed, first..first + batch, cancel);
+        if cancel.load(Ordering::Relaxed) {
+            // An interrupted batch left samples out of its sums.
+            break;
+        }
+        seeds.append(more);
     }
 }
 
@@ -264,11 +424,23 @@ impl Integrator for PathMlt {
         let direct = self.settings.direct;
         direct::render_into(&mut film, scene, &self.bdpt, direct, options, cancel, &mut stats, &mut metadata);
         let seed = options.seed ^ (options.first_sample as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15);
-        let all_seeds = self.settings.seed_paths.unwrap_or_else(|| default_seed_paths(pixels)).max(1);
+        let total_mutations = driver::total_mutations(options, scene);
+        let all_seeds =
+            self.settings.seed_paths.unwrap_or_else(|| default_seed_paths(pixels, total_mutations)).max(1);
         let seed_range = options.share.range(all_seeds as u64);
-        let n_seed = (seed_range.end - seed_range.start) as usize;
         let seed_indices = seed_range.start as usize..seed_range.end as usize;
-        let seeds = PathSeeds::run_range(scene, &self.bdpt, seed, seed_indices, cancel);
+        let seeding_start = Instant::now();
+        let mut seeds = PathSeeds::run_range(scene, &self.bdpt, seed, seed_indices, cancel);
+        // A time-limited render seeds for its share of the time; a farm part keeps its share of the
+        // indices (the parts' passes would overlap past them).
+        let seeding_time = match (options.time_limit, self.settings.seed_paths, options.share.is_whole()) {
+            (Some(limit), None, true) => Some(limit.mul_f64(self.settings.seed_share.clamp(0.0, 1.0))),
+            _ => None,
+        };
+        if let Some(budget) = seeding_time {
+            extend_seeds(&mut seeds, scene, &self.bdpt, seed, budget, seeding_start, cancel);
+        }
+        let n_seed = seeds.samples;
         stats.rays += seeds.rays.rays;
         stats.shadow_rays += seeds.rays.shadow_rays;
         stats.invalid_samples += seeds.invalid;
@@ -276,6 +448,7 @@ impl Integrator for PathMlt {
         metadata.push(("hslt.mlt.seed_paths".into(), n_seed.to_string()));
         metadata.push(("hslt.mlt.seed_candidates".into(), seeds.candidates().to_string()));
         metadata.push(("hslt.mlt.normalization".into(), format!("{b:.6e}")));
+        metadata.push(("hslt.mlt.seed_largest_share".into(), format!("{:.3e}", seeds.largest_share())));
         let mutation_names: Vec<String> =
             self.settings.mutations.iter().map(|(k, w)| format!("{}:{w}", k.name())).collect();
         metadata.push(("hslt.mlt.mutation_set".into(), mutation_names.join(",")));
@@ -300,7 +473,6 @@ impl Integrator for PathMlt {
             stats.elapsed = start_time.elapsed();
             return RenderOutput { film, stats, metadata, work };
         }
-        let total_mutations = driver::total_mutations(options, scene);
         let chain_range = driver::chain_range(options, self.settings.chains, total_mutations);
         let n_chains = chain_range.len();
         let chains_start = Instant::now();

@@ -153,6 +153,9 @@ pub struct IntegratorSettings {
     pub pssmlt: crate::metropolis::PssmltSettings,
     /// Path-space methods: the number of chains (`None`: `metropolis::mlt::DEFAULT_PATH_CHAINS`).
     pub path_chains: Option<usize>,
+    /// Path-space methods: the share of a time limit the seeding pass runs for (`None`:
+    /// `metropolis::mlt::SEED_TIME_SHARE`).
+    pub seed_share: Option<f64>,
     /// Path-space methods: the mutation mixture (`None`: the technique's default) and the parameters
     /// of the individual mutations.
     pub mutations: Option<Vec<(MutationKind, f64)>>,
@@ -169,6 +172,7 @@ impl IntegratorSettings {
             mis: crate::path::MisHeuristic::Power,
             pssmlt: crate::metropolis::PssmltSettings::default(),
             path_chains: None,
+            seed_share: None,
             mutations: None,
             mutation: MutationSettings::default(),
         }
@@ -217,6 +221,7 @@ pub fn make_with(kind: IntegratorKind, settings: &IntegratorSettings) -> Box<dyn
                 settings.mutations.clone().unwrap_or_else(|| kind.default_mutations()),
             );
             mlt.seed_paths = settings.pssmlt.seed_paths;
+            mlt.seed_share = settings.seed_share.unwrap_or(crate::metropolis::mlt::SEED_TIME_SHARE);
             mlt.direct = direct;
             mlt.chains = settings.path_chains.unwrap_or(crate::metropolis::mlt::DEFAULT_PATH_CHAINS);
             mlt.target = settings.pssmlt.target;
