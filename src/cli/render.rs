@@ -79,7 +79,7 @@ pub struct RenderArgs {
     #[arg(long, value_name = "F", conflicts_with = "seed_paths")]
     pub seed_share: Option<f64>,
     /// Metropolis: number of Markov chains, fixed so the image does not depend on the thread count
-    /// (default: 64 for PSSMLT, 1024 for the path-space methods).
+    /// (default: 64 for PSSMLT, 4096 for the path-space methods).
     #[arg(long, value_name = "N")]
     pub chains: Option<usize>,
     /// Path-space MLT (mlt, memlt, hslt, hslt+mlt): the mutation mixture with selection weights, e.g.

@@ -62,11 +62,14 @@ impl MltSettings {
     }
 }
 
-/// Chains of a path-space technique unless `--chains` says otherwise. Each chain carries 1/chains of
-/// the image's energy wherever it wanders, so few chains leave bright blotches where one lingers: on
-/// the jewelry scene (128×96, 30-60 s) 1024 chains have 2-3 times lower relative MSE than 64. Unlike
-/// PSSMLT's, these chains have no large steps to spread them out.
-pub const DEFAULT_PATH_CHAINS: usize = 1024;
+/// Chains of a path-space technique unless `--chains` says otherwise (and no more than there are
+/// mutations). Each chain carries 1/chains of the image's energy wherever it wanders, and chains that
+/// mix slowly between families of paths keep most of it near where they started, so the chain starts
+/// are a sample of the image in their own right. On nested-glass (MEMLT, 48×36, 60 s, seeds 1–3) 4096
+/// chains had half the 6×6-block relative MSE of 1024 (2.0e-3 against 4.4e-3 on average); on rings
+/// and jewelry (hslt, 64×48, 20 s) they did as well as 1024, and 16 384 did no better on nested-glass
+/// and 40% worse on rings (docs/mlt.md). Starting one costs a seed draw (`SEED_GROUP` BDPT samples).
+pub const DEFAULT_PATH_CHAINS: usize = 4096;
 
 /// Seed paths of a path-space technique with a fixed amount of work, unless `--seed-paths` says
 /// otherwise: one per 16 mutations and at least sixteen per pixel and 65 536, at most 2^24 (16 MiB of
