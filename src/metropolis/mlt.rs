@@ -68,7 +68,7 @@ impl MltSettings {
 /// are a sample of the image in their own right. On nested-glass (MEMLT, 48×36, 60 s, seeds 1–3) 4096
 /// chains had half the 6×6-block relative MSE of 1024 (2.0e-3 against 4.4e-3 on average); on rings
 /// and jewelry (hslt, 64×48, 20 s) they did as well as 1024, and 16 384 did no better on nested-glass
-/// and 40% worse on rings (docs/mlt.md). Starting one costs a seed draw (`SEED_GROUP` BDPT samples).
+/// and 40% worse on rings (docs/mlt.md). Starting one costs a seed draw (`seed_group` BDPT samples).
 pub const DEFAULT_PATH_CHAINS: usize = 4096;
 
 /// Seed paths of a path-space technique with a fixed amount of work, unless `--seed-paths` says
@@ -103,10 +103,25 @@ pub struct PathMlt {
     pub settings: MltSettings,
 }
 
-/// Seed samples per group: the seeding pass keeps one running sum per group, not per strategy, and a
-/// draw replays the samples of its group to find the strategy (at most this many BDPT samples).
-/// Memory is then about one byte per seed sample, so the pass can be long (`SEED_TIME_SHARE`).
+/// Seed samples per group in a long pass: the seeding pass keeps one running sum per group, not per
+/// strategy, and a draw replays the samples of its group to find the strategy (at most this many BDPT
+/// samples). Memory is then about one byte per seed sample, so the pass can be long
+/// (`SEED_TIME_SHARE`).
 const SEED_GROUP: usize = 16;
+
+/// Passes of at most this many samples keep a sum per sample (16 MiB at most), so a chain's start
+/// replays one sample: with 4096 chains and a pass of 65 536 samples, replaying groups of 16 cost
+/// as much as the pass itself.
+const UNGROUPED_SEED_PATHS: usize = 1 << 20;
+
+/// Samples per group of a pass of `n` samples (`SEED_CHUNK` is a multiple of both).
+fn seed_group(n: usize) -> usize {
+    if n <= UNGROUPED_SEED_PATHS {
+        1
+    } else {
+        SEED_GROUP
+    }
+}
 
 /// A seed strategy counted by the pass: its luminance if it can start a chain (positive and finite),
 /// or why not. Pass and replay must classify alike, so both use this.
@@ -180,6 +195,21 @@ impl PathSeeds {
         indices: std::ops::Range<usize>,
         cancel: &AtomicBool,
     ) -> PathSeeds {
+        let group = seed_group(indices.len());
+        PathSeeds::run_grouped(scene, bdpt, seed, indices, group, cancel)
+    }
+
+    /// `run_range` with one running sum per `group` samples (a divisor of `SEED_CHUNK`); the draws
+    /// are the same for every grouping, only their cost and the memory differ.
+    pub fn run_grouped(
+        scene: &Scene,
+        bdpt: &Bdpt,
+        seed: u64,
+        indices: std::ops::Range<usize>,
+        group: usize,
+        cancel: &AtomicBool,
+    ) -> PathSeeds {
+        assert!(group > 0 && SEED_CHUNK % group == 0, "seed groups must tile the chunks");
         let (first, n) = (indices.start, indices.len());
         let chunks: Vec<SeedChunk> = (0..n.div_ceil(SEED_CHUNK))
             .into_par_iter()
@@ -190,7 +220,7 @@ impl PathSeeds {
                 }
                 let chunk_end = first + ((chunk + 1) * SEED_CHUNK).min(n);
                 for i in first + chunk * SEED_CHUNK..chunk_end {
-                    if (i - first) % SEED_GROUP == 0 {
+                    if (i - first) % group == 0 {
                         out.groups.push((i, 0.0));
                     }
                     let mut ctx = PssContext::new(scene, bdpt, Pssmlt::seed_pss(seed, i));
@@ -297,8 +327,8 @@ impl PathSeeds {
         let g = sample_cdf(&self.cdf, u)?;
         let before = if g > 0 { self.cdf[g - 1] } else { 0.0 };
         let mut rest = u * self.cdf.last()? - before;
-        let next = self.group_first.get(g + 1).copied().unwrap_or(self.end);
-        let group_end = next.min(self.group_first[g] + SEED_GROUP);
+        // Groups tile the pass: each ends where the next begins.
+        let group_end = self.group_first.get(g + 1).copied().unwrap_or(self.end);
         // The last positive strategy of the group, should rounding leave `rest` beyond the group's sum.
         let mut last = None;
         'samples: for i in self.group_first[g]..group_end {
