@@ -105,6 +105,9 @@ fn converges_to_bdpt_seeded(
     let mut settings = IntegratorSettings::new(limits, scene.integrator.hide_emitters);
     settings.pssmlt.seed_paths = Some(seed_paths);
     settings.pssmlt.direct = direct;
+    // 1024 path-space chains of 64 mutations each: the default 4096 would run 16 each at this size, and
+    // this test is of the mutations more than of the seed draws.
+    settings.path_chains = Some(1024);
     let render = |kind: IntegratorKind, spp: u32, seed: u64| {
         let (img, stats) = if kind == IntegratorKind::Bdpt {
             render_scene(&scene, kind, spp, seed)
