@@ -8,6 +8,7 @@ use hslt::cli::Cli;
 use std::ffi::OsString;
 
 fn main() {
+    exit_quietly_on_broken_pipe();
     let cli = parse_args(std::env::args_os().collect());
     match hslt::cli::run(cli) {
         Ok(code) => std::process::exit(code),
@@ -16,6 +17,23 @@ fn main() {
             std::process::exit(1);
         }
     }
+}
+
+/// Output piped into a program that stops reading (`hslt error … | head`) ends the command, as it
+/// would a C program killed by SIGPIPE (status 141), instead of a panic report: Rust ignores SIGPIPE,
+/// so the next `println!` panics with "failed printing to stdout: Broken pipe". Every other panic
+/// keeps the default report.
+fn exit_quietly_on_broken_pipe() {
+    let report = std::panic::take_hook();
+    std::panic::set_hook(Box::new(move |info| {
+        let payload = info.payload();
+        let message =
+            payload.downcast_ref::<String>().map(String::as_str).or(payload.downcast_ref::<&str>().copied());
+        if message.is_some_and(|m| m.starts_with("failed printing to stdout") && m.contains("Broken pipe")) {
+            std::process::exit(141);
+        }
+        report(info);
+    }));
 }
 
 /// clap parsing, with `--version` answered by [`long_version`]. Starting an Embree device just to

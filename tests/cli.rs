@@ -518,3 +518,23 @@ fn tev_receives_a_create_and_updates_of_the_image() {
     assert!(out.is_file());
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// `hslt info scene | head -1`: a reader that stops early ends the command quietly (status 141, as
+/// SIGPIPE would), not with a panic report.
+#[test]
+fn a_closed_output_pipe_is_not_a_panic() {
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/cornell-box/scene.xml");
+    let mut child = hslt()
+        .arg("info")
+        .arg(&scene)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // Close the read end before the child can have written anything (it must start and load first).
+    drop(child.stdout.take());
+    let out = child.wait_with_output().unwrap();
+    let err = stderr(&out);
+    assert!(!err.contains("panicked"), "{err}");
+    assert_eq!(out.status.code(), Some(141), "{err}");
+}
