@@ -199,10 +199,11 @@ fn seed_draws_are_the_strategies_where_the_running_sum_passes_u() {
     let mut parts = PathSeeds::run_grouped(&scene, &bdpt, seed, 0..cut, 16, &cancel);
     parts.append(PathSeeds::run_range(&scene, &bdpt, seed, cut..n, &cancel));
     let mut running = Vec::new();
-    let mut sum = 0.0;
+    let (mut sum, mut squares) = (0.0, 0.0);
     for i in 0..n {
         let mut ctx = PssContext::new(&scene, &bdpt, Pssmlt::seed_pss(seed, i));
         let (_, sub) = ctx.evaluate_with_paths();
+        let before = sum;
         for c in ctx.contributions() {
             let y = luminance(c.value) as f64;
             if y > 0.0 && y.is_finite() {
@@ -210,7 +211,16 @@ fn seed_draws_are_the_strategies_where_the_running_sum_passes_u() {
                 running.push((sum, c.path(&sub)));
             }
         }
+        squares += (sum - before).powi(2);
     }
+    // b's standard error from the samples' spread: exact with a sum per sample, estimated from the
+    // groups' spread otherwise (188 groups of 16 here, so within a few tens of percent).
+    let mean = sum / n as f64;
+    let standard_error = ((squares / n as f64 - mean * mean) / n as f64).sqrt();
+    let relative = |seeds: &PathSeeds| seeds.b_standard_error() / standard_error - 1.0;
+    assert!(relative(&whole).abs() < 1e-6, "one pass: b's error off by {:.3}", relative(&whole));
+    assert!(relative(&grouped).abs() < 0.3, "grouped: b's error off by {:.3}", relative(&grouped));
+    assert!(relative(&parts).abs() < 0.3, "two parts: b's error off by {:.3}", relative(&parts));
     for (name, seeds) in [("one pass", &whole), ("grouped", &grouped), ("two parts", &parts)] {
         assert_eq!(seeds.samples, n, "{name}");
         assert_eq!(seeds.candidates(), running.len(), "{name}");
@@ -229,6 +239,30 @@ fn seed_draws_are_the_strategies_where_the_running_sum_passes_u() {
             let positions = |p: &[Vertex]| p.iter().map(|v| v.p).collect::<Vec<_>>();
             assert_eq!(positions(&drawn.vertices), positions(expected), "{name}: draw at u = {u}");
         }
+    }
+}
+
+/// b's standard error as the seeding pass reports it (the normalisation's error, in the metadata as
+/// `hslt.mlt.b_seed_relative_error`) matches the spread of b over independent passes, grouped or not.
+#[test]
+fn the_seeding_pass_knows_the_error_of_its_b() {
+    let scene = scene("scenes/cornell-box/scene.xml");
+    let bdpt = bdpt(&scene);
+    let cancel = AtomicBool::new(false);
+    for group in [1, 16] {
+        let passes: Vec<PathSeeds> = (0..12)
+            .map(|seed| PathSeeds::run_grouped(&scene, &bdpt, seed, 0..8192, group, &cancel))
+            .collect();
+        let bs: Vec<f64> = passes.iter().map(|p| p.b).collect();
+        let mean = bs.iter().sum::<f64>() / bs.len() as f64;
+        let spread = (bs.iter().map(|b| (b - mean).powi(2)).sum::<f64>() / (bs.len() - 1) as f64).sqrt();
+        let reported = passes.iter().map(|p| p.b_standard_error()).sum::<f64>() / passes.len() as f64;
+        // 12 passes estimate the spread to about ±20%.
+        let ratio = spread / reported;
+        assert!(
+            (0.5..2.0).contains(&ratio),
+            "groups of {group}: spread {spread:.3e}, reported {reported:.3e}"
+        );
     }
 }
 

@@ -6,8 +6,9 @@
 use super::chain::{Chain, MutationStats, TargetFunction, WeightedMutation};
 use super::direct;
 use super::driver::{self, ChainRunner, RunningChain};
-use super::mutations::largestep::{self, StrategyPmf};
+use super::mutations::largestep::StrategyPmf;
 use super::mutations::{self, MutationKind, MutationSettings};
+use super::normalization;
 use super::path_state::{PathContext, PathState};
 use super::pssmlt::{acceptance_extra, sample_cdf, PssContext, Pssmlt};
 use crate::integrators::{bdpt::Contribution, Bdpt};
@@ -146,6 +147,8 @@ pub struct PathSeeds {
     candidates: usize,
     pub samples: usize,
     pub b: f64,
+    /// Σ over groups of (the group's luminance sum)², for the variance of b.
+    group_square_sum: f64,
     /// Σ luminance of the weighted strategies by edge count k (= vertices − 1) and light-side vertex
     /// count s (`by_strategy[k][s]`): which lengths carry the light and which of BDPT's strategies make
     /// them well, which the large step proposes from (`largestep::StrategyPmf`).
@@ -255,6 +258,7 @@ impl PathSeeds {
             candidates: 0,
             samples: n,
             b: 0.0,
+            group_square_sum: 0.0,
             by_strategy: Vec::new(),
             largest: 0.0,
             rays: SampleCounters::default(),
@@ -273,6 +277,7 @@ impl PathSeeds {
             }
             for (group_first, y) in chunk.groups {
                 sum += y;
+                seeds.group_square_sum += y * y;
                 seeds.group_first.push(group_first);
                 seeds.cdf.push(sum);
             }
@@ -291,6 +296,7 @@ impl PathSeeds {
         self.end += more.samples;
         self.candidates += more.candidates;
         self.samples += more.samples;
+        self.group_square_sum += more.group_square_sum;
         self.b = if self.samples > 0 {
             self.cdf.last().copied().unwrap_or(0.0) / self.samples as f64
         } else {
@@ -304,6 +310,17 @@ impl PathSeeds {
         self.largest = self.largest.max(more.largest);
         self.rays += more.rays;
         self.invalid += more.invalid;
+    }
+
+    /// The standard error of b, from the spread of the group sums: a group of m samples has m times
+    /// a sample's variance σ² about m · b, so Σ G² − b² Σ m² (`m2`) estimates n σ² (0 from
+    /// fewer than two samples).
+    pub fn b_standard_error(&self) -> f64 {
+        let ends = self.group_first.iter().skip(1).copied().chain(std::iter::once(self.end));
+        let m2: f64 = self.group_first.iter().zip(ends).map(|(&a, b)| ((b - a) as f64).powi(2)).sum();
+        let n = self.samples as f64;
+        let variance = ((self.group_square_sum - self.b * self.b * m2) / n).max(0.0);
+        (variance / n).sqrt()
     }
 
     /// The share of b's sum on the single heaviest seed path (0 when there is none).
@@ -541,16 +558,8 @@ impl Integrator for PathMlt {
             ));
         }
         let quotas = driver::quotas(total_mutations, chains.len());
-        // b from the seeding pass and every large step (each an unbiased estimate, `largestep`).
-        let seed_sum = b * n_seed as f64;
-        let normalization = |stats: &[MutationStats]| {
-            let (large_sum, large_n) = stats
-                .iter()
-                .filter(|s| s.name == MutationKind::LargeStep.name())
-                .map(|s| (s.sums.get(largestep::B_ESTIMATE).copied().unwrap_or(0.0), s.proposed))
-                .fold((0.0, 0), |(a, n), (x, m)| (a + x, n + m));
-            (seed_sum + large_sum, n_seed as u64 + large_n)
-        };
+        // b from the seeding pass alone (`normalization`): the large steps' estimate is heavy-tailed.
+        let normalization = |_: &[MutationStats]| (b * n_seed as f64, n_seed as u64);
         let outcome = driver::drive(
             options,
             cancel,
@@ -563,6 +572,7 @@ impl Integrator for PathMlt {
         );
         let (b_sum, b_samples) = normalization(&outcome.stats);
         metadata.push(("hslt.mlt.normalization_final".into(), format!("{:.6e}", b_sum / b_samples as f64)));
+        metadata.extend(normalization::metadata(b, seeds.b_standard_error(), &outcome.stats));
         let mutation_stats: Vec<MutationStats> = outcome.stats;
         stats.rays += outcome.rays;
         stats.shadow_rays += outcome.shadow_rays;

@@ -7,6 +7,7 @@ pub mod direct;
 pub mod driver;
 pub mod mlt;
 pub mod mutations;
+pub mod normalization;
 pub mod path_state;
 pub mod pss;
 pub mod pssmlt;

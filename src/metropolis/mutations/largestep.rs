@@ -117,6 +117,9 @@ impl StrategyPmf {
 /// The `MutationStats::sums` key of Σ luminance f(y) / p(y) over the proposals.
 pub const B_ESTIMATE: &str = "b_estimate";
 
+/// The `MutationStats::sums` key of Σ (luminance f(y) / p(y))²: the variance of `B_ESTIMATE`'s terms.
+pub const B_ESTIMATE_SQUARES: &str = "b_estimate_squares";
+
 /// The large step with its distribution of lengths and splits.
 #[derive(Clone, Debug, Default)]
 pub struct LargeStep {
@@ -169,9 +172,12 @@ impl<'a> Mutation<PathState, PathContext<'a>> for LargeStep {
             return Err(Failure::Failed("degenerate_density"));
         }
         stats.add_sum("new_edges", k_new as f64);
-        // luminance f(y) / p(y) is an unbiased estimate of b (failed proposals count 0): the render
-        // refines the seeding pass's b with it, as PSSMLT does with its large steps.
-        stats.add_sum(B_ESTIMATE, state.luminance() / forward);
+        // luminance f(y) / p(y) is an unbiased estimate of b (failed proposals count 0), recorded
+        // beside the seeding pass's but not mixed into it: p(y) carries the strategy's pmf, so its
+        // tail is far heavier (`metropolis::normalization`).
+        let estimate = state.luminance() / forward;
+        stats.add_sum(B_ESTIMATE, estimate);
+        stats.add_sum(B_ESTIMATE_SQUARES, estimate * estimate);
         Ok(Proposal { state, t_ratio })
     }
 }
