@@ -158,7 +158,7 @@ pub fn walk_in_chart_counting_rays(
 /// corrector row, and they are cast as one batch (Embree packets), so walks in flight share packets.
 /// Each walk runs the same steps as alone, so its result is `walk`'s bit for bit unless one of its rays
 /// hits two triangles at the same distance, a tie Embree breaks by traversal order, which depends on
-/// the packet's other rays (about 1 walk in 5000 at 64 in flight on jewelry; docs/benchmarks.md).
+/// the packet's other rays (about 1 walk in 5000 at 64 in flight on jewelry; docs/mlt-sessions.md).
 /// `rays[j]` gains the rays job j cast.
 pub fn walk_many(
     scene: &Scene,

@@ -43,7 +43,7 @@ impl DirectPass {
     /// poorly: on the caustic scene, with 65 536 seed paths, lens-only chains came out 3.6% dark
     /// (0.0739 ± 0.0004 against BDPT's 0.0767 ± 0.0011 over 16 runs). Every large step's f(y)/p(y)
     /// refines b as PSSMLT's large steps do, and with both the path-space methods' relative MSE on the
-    /// rings of the jewelry scene fell 2.5–10× (docs/benchmarks.md, session 8).
+    /// rings of the jewelry scene fell 2.5–10× (docs/mlt-sessions.md, session 8).
     pub fn for_path_space(self, refines_b: bool) -> DirectPass {
         if self == DirectPass::Auto && !refines_b {
             DirectPass::Off
@@ -112,7 +112,7 @@ pub fn chain_bdpt(mut bdpt: Bdpt, direct: DirectPass) -> Bdpt {
 /// light alone, 6 s, 3 seeds) it left a relative MSE of 4.7e-4 against 1.4e-4 with these two parts,
 /// and with it the pass was the larger part of every Metropolis method's error in a 60-s render. The
 /// path tracer alone (1.2e-4 there) sees a light's edges only by hitting the light: on the Cornell
-/// box at 32×32 it left ten times BDPT's error, which the second part removes (docs/benchmarks.md,
+/// box at 32×32 it left ten times BDPT's error, which the second part removes (docs/mlt-sessions.md,
 /// sessions 9–10).
 #[allow(clippy::too_many_arguments)]
 pub fn render_into(

@@ -97,10 +97,10 @@ impl IntegratorKind {
     /// Every mixture has the large step, whose f(y)/p(y) refines b (and with it the direct pass runs,
     /// `DirectPass::for_path_space`). The HSLT mixtures add the half-vector lens and caustic
     /// perturbations (HSLT's parameterisation in Veach's two perturbations; the caustic one halved
-    /// the chains' error on the rings' floor caustics, docs/benchmarks.md, session 14) and give the
+    /// the chains' error on the rings' floor caustics, docs/mlt-sessions.md, session 14) and give the
     /// half-vector mutation a tenth of the proposals: one cost about as much time as 50 lens
     /// perturbations (jewelry's rings, 2 threads), so at weight 1 it took 90% of the time and the
-    /// rings' relative MSE was 2.2× that at 0.1 (docs/benchmarks.md, session 8). At 18 lens
+    /// rings' relative MSE was 2.2× that at 0.1 (docs/mlt-sessions.md, session 8). At 18 lens
     /// perturbations' cost (session 15) weight 1 still loses on rings and jewelry. The large step
     /// makes `LARGE_STEP_SHARE` of the proposals.
     pub fn default_mutations(self) -> Vec<(MutationKind, f64)> {
@@ -128,7 +128,7 @@ impl IntegratorKind {
 /// (of 128) made about 700 such jumps in 60 s where a PSSMLT chain (of 64) made 5 000, and the
 /// chains' image had 3–5× PSSMLT's error on 8×8 blocks. Half of the proposals lowered HSLT+MLT's
 /// relative MSE on the rings' indirect light by a fifth, 1.61e-4 to 1.25e-4 (37%: 1.41e-4, 70%:
-/// 1.45e-4), and did no harm on jewelry (docs/benchmarks.md, session 13).
+/// 1.45e-4), and did no harm on jewelry (docs/mlt-sessions.md, session 13).
 pub const LARGE_STEP_SHARE: f64 = 0.5;
 
 /// The half-vector mutation's weight in the default HSLT mixtures (the others' weights are 1).
