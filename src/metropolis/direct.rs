@@ -37,15 +37,15 @@ pub enum DirectPass {
 }
 
 impl DirectPass {
-    /// The pass a path-space method runs. `Auto` runs it when the mixture has a large step
-    /// (`refines_b`) and is off otherwise. With the pass the chains' b covers indirect light alone,
-    /// which is far more heavy-tailed than the whole image, and a seeding pass alone estimates it
-    /// poorly: on the caustic scene, with 65 536 seed paths, lens-only chains came out 3.6% dark
-    /// (0.0739 ± 0.0004 against BDPT's 0.0767 ± 0.0011 over 16 runs). Every large step's f(y)/p(y)
-    /// refines b as PSSMLT's large steps do, and with both the path-space methods' relative MSE on the
-    /// rings of the jewelry scene fell 2.5–10× (docs/mlt-sessions.md, session 8).
-    pub fn for_path_space(self, refines_b: bool) -> DirectPass {
-        if self == DirectPass::Auto && !refines_b {
+    /// The pass a path-space method runs. `Auto` runs it when the mixture has a large step and is off
+    /// otherwise. With the pass the chains' b covers indirect light alone, which is far more
+    /// heavy-tailed than the whole image: on the caustic scene, with 65 536 seed paths, lens-only
+    /// chains came out 3.6% dark (0.0739 ± 0.0004 against BDPT's 0.0767 ± 0.0011 over 16 runs). The
+    /// large steps then refined b, and with both the path-space methods' relative MSE on the rings of
+    /// the jewelry scene fell 2.5–10× (docs/mlt-sessions.md, session 8). b now comes from a seeding
+    /// pass long enough on its own (`metropolis::normalization`); the rule was not re-measured since.
+    pub fn for_path_space(self, has_large_step: bool) -> DirectPass {
+        if self == DirectPass::Auto && !has_large_step {
             DirectPass::Off
         } else {
             self

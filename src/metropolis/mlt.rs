@@ -406,8 +406,8 @@ impl PathMlt {
     /// With `settings.direct` enabled the chains and the seeding pass run on `bdpt` without its
     /// direct-lighting paths (`direct::chain_bdpt`), which the render estimates separately.
     pub fn new(name: &'static str, bdpt: Bdpt, settings: MltSettings) -> PathMlt {
-        let refines_b = settings.mutations.iter().any(|&(k, w)| k == MutationKind::LargeStep && w > 0.0);
-        let settings = MltSettings { direct: settings.direct.for_path_space(refines_b), ..settings };
+        let large_step = settings.mutations.iter().any(|&(k, w)| k == MutationKind::LargeStep && w > 0.0);
+        let settings = MltSettings { direct: settings.direct.for_path_space(large_step), ..settings };
         PathMlt { name, bdpt: direct::chain_bdpt(bdpt, settings.direct), settings }
     }
 

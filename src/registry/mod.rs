@@ -94,7 +94,7 @@ impl IntegratorKind {
     /// The mutation mixture of a path-space technique (empty for the others): Veach's set for MLT,
     /// plus the manifold perturbation for MEMLT (Mitsuba's MEMLT mixture), the half-vector mutation
     /// with the bidirectional one for HSLT (the paper's "HSLT"), and with Veach's set for HSLT+MLT.
-    /// Every mixture has the large step, whose f(y)/p(y) refines b (and with it the direct pass runs,
+    /// Every mixture has the large step (and with it the direct pass runs,
     /// `DirectPass::for_path_space`). The HSLT mixtures add the half-vector lens and caustic
     /// perturbations (HSLT's parameterisation in Veach's two perturbations; the caustic one halved
     /// the chains' error on the rings' floor caustics, docs/mlt-sessions.md, session 14) and give the
