@@ -5,7 +5,7 @@
 use crate::bsdf::{BsdfContext, TransportMode};
 use crate::geometry::{Ray, Vec3};
 use crate::render::{DepthLimits, PixelIntegrator, SampleCounters, SampleOutput};
-use crate::sampling::{power_heuristic, Sampler};
+use crate::sampling::{power_heuristic, roulette, Sampler};
 use crate::scene::Scene;
 use crate::spectrum::Spectrum;
 
@@ -155,7 +155,7 @@ impl PixelIntegrator for PathTracer {
             prev = Some(PrevVertex { p: si.p, bsdf_pdf: bs.pdf, delta: bs.lobe.is_delta() });
 
             if segments >= self.limits.rr_depth {
-                let q = (throughput.max_element() * eta * eta).min(0.95);
+                let q = roulette::survival_probability(throughput.max_element() * eta * eta);
                 if !(sampler.next_1d() < q) {
                     break;
                 }

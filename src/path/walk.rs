@@ -8,7 +8,7 @@ use super::{PathView, Vertex};
 use crate::bsdf::{BsdfContext, BsdfLobe, TransportMode};
 use crate::geometry::{Ray, Vec3};
 use crate::render::SampleCounters;
-use crate::sampling::SampleSource;
+use crate::sampling::{roulette, SampleSource};
 use crate::scene::Scene;
 use crate::spectrum::Spectrum;
 
@@ -100,7 +100,7 @@ pub fn extend<S: SampleSource + ?Sized>(
         }
         let segments = (path.len() - 1) as i32;
         if limits.rr_depth >= 0 && segments >= limits.rr_depth {
-            let q = (beta.max_element() * eta_scale * eta_scale).min(0.95);
+            let q = roulette::survival_probability(beta.max_element() * eta_scale * eta_scale);
             if !(sampler.next_1d() < q) {
                 break;
             }

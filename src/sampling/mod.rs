@@ -3,6 +3,7 @@
 //! never from the thread that happens to run the work, so images do not depend on scheduling.
 
 mod distribution;
+pub mod roulette;
 pub mod special;
 mod warp;
 
