@@ -61,6 +61,11 @@ pub fn extend<S: SampleSource + ?Sized>(
 ) -> Option<(Vec3, Spectrum)> {
     // Relative IOR accumulated along the walk, so roulette judges radiance-like throughput.
     let mut eta_scale = 1.0f32;
+    // Roulette judges the throughput relative to the walk's start: a light walk starts at Le·cos/pdf,
+    // often far above 1, and judged absolutely it would only ever end by the survival cap, about 100
+    // bounces on average at 0.99, however much its surfaces absorb (Mitsuba 0.5's walks start at 1).
+    let start_scale = beta.max_element();
+    let start_scale = if start_scale > 0.0 && start_scale.is_finite() { start_scale } else { 1.0 };
     while path.len() < limits.max_vertices {
         counters.rays += 1;
         let Some(si) = scene.intersect(&ray) else {
@@ -100,7 +105,7 @@ pub fn extend<S: SampleSource + ?Sized>(
         }
         let segments = (path.len() - 1) as i32;
         if limits.rr_depth >= 0 && segments >= limits.rr_depth {
-            let q = roulette::survival_probability(beta.max_element() * eta_scale * eta_scale);
+            let q = roulette::survival_probability(beta.max_element() / start_scale * eta_scale * eta_scale);
             if !(sampler.next_1d() < q) {
                 break;
             }

@@ -7,11 +7,12 @@
 /// bounce past `rr_depth` multiplies the surviving path's weight by 1/cap: after n such bounces its
 /// variance grows by cap^-n. Mitsuba 3's 0.95 gives 36× the weight after the 70 bounces a path
 /// caught in one of jewelry's gems can make (the 77-vertex seed path that held 1.2% of b, docs/mlt.md);
-/// 0.99 gives 2×, for at most five times the bounces in such traps. Camera walks on surfaces that
-/// absorb 5% or more end as before; light walks judge their absolute throughput (Le·cos/pdf, often far
-/// above 1), so until it decays they run to the cap and are longer everywhere: the closed-sphere
-/// analytic tests' BDPT took 1.6× longer (docs/benchmarks.md). pbrt-v4 never caps (q = 1 while the throughput is
-/// at least 1) and bounds the depth instead, which our unbounded `max_depth = -1` cannot do.
+/// 0.99 gives 2×, for at most five times the bounces in such traps. Walks on surfaces that absorb 5% or
+/// more end as before, provided the throughput is judged relative to the walk's start: a light walk's
+/// starts at Le·cos/pdf, often far above 1, and judged absolutely it ran to the cap everywhere (the
+/// closed-sphere analytic tests' BDPT took 1.6× longer, docs/benchmarks.md). pbrt-v4 never caps (q = 1
+/// while the throughput is at least 1) and bounds the depth instead, which our unbounded
+/// `max_depth = -1` cannot do.
 ///
 /// Measured (64×48, 2 threads, 20 s, seeds 1–3, against two 150-s BDPT renders; docs/benchmarks.md):
 /// jewelry `pt` relative MSE 3.3, 4.0, 3.9e-3 → 2.6, 2.4, 2.6e-3 at the same samples per pixel, `bdpt`
