@@ -427,9 +427,11 @@ impl PathMlt {
             .collect()
     }
 
-    /// A chain on a drawn seed path, and how many of its draws failed: a draw whose path does not
-    /// evaluate (f zero or out of range) is redrawn, which moves that path's share of b onto
-    /// others, so the count goes into the metadata (it exposed f32 overflow on jewelry's diamond).
+    /// A chain on the seed path at `position` of the seeds' cumulative weights
+    /// (`driver::systematic_position`), and how many of its draws failed: a draw whose path does not
+    /// evaluate (f zero or out of range) is redrawn at a random position, which moves that path's
+    /// share of b onto others, so the count goes into the metadata (it exposed f32 overflow on
+    /// jewelry's diamond).
     fn start_chain<'a>(
         &'a self,
         scene: &'a Scene,
@@ -437,11 +439,13 @@ impl PathMlt {
         settings: &MutationSettings,
         seed: u64,
         chain_index: usize,
+        position: f64,
     ) -> (Option<ChainRunner<PathState, PathContext<'a>>>, usize) {
         let mut rng = Sampler::new(seed, chain_index as u64, CHAIN_STREAM);
         let target = self.settings.target;
         for attempt in 0..START_ATTEMPTS {
-            let Some(start) = seeds.draw(scene, &self.bdpt, seed, rng.next_f64()) else { continue };
+            let u = if attempt == 0 { position } else { rng.next_f64() };
+            let Some(start) = seeds.draw(scene, &self.bdpt, seed, u) else { continue };
             if target.of(&start) > 0.0 {
                 let mutations = self.build_mutations(scene, settings);
                 if mutations.is_empty() {
@@ -529,11 +533,15 @@ impl Integrator for PathMlt {
         let mut mutation_settings = self.settings.mutation.clone();
         mutation_settings.large_step_strategies = StrategyPmf::from_histogram(&seeds.by_strategy, &self.bdpt);
         // Starting a million chains takes seconds and gigabytes: a cancel (Ctrl-C, --max-memory) stops it too.
+        let first_chain = chain_range.start;
         let started: Vec<_> = chain_range
             .into_par_iter()
             .map(|c| match cancel.load(Ordering::Relaxed) {
                 true => (None, 0),
-                false => self.start_chain(scene, &seeds, &mutation_settings, seed, c),
+                false => {
+                    let position = driver::systematic_position(seed, CHAIN_STREAM, c - first_chain, n_chains);
+                    self.start_chain(scene, &seeds, &mutation_settings, seed, c, position)
+                }
             })
             .collect();
         if cancel.load(Ordering::Relaxed) {

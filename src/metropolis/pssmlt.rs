@@ -204,19 +204,21 @@ impl Pssmlt {
         ]
     }
 
-    /// Chain `chain_index`, started from a seed sample drawn in proportion to its target: the chain is
-    /// then in its stationary distribution from the first mutation, so no start-up samples are discarded.
+    /// Chain `chain_index`, started from the seed sample at `position` of the cumulative weights
+    /// (`driver::systematic_position`), so drawn in proportion to its target: the chain is then in its
+    /// stationary distribution from the first mutation, so no start-up samples are discarded.
     /// `cdf` runs over the seed samples from index `first_seed` on.
     fn start_chain<'a>(
         &'a self,
         scene: &'a Scene,
         seed: u64,
         chain_index: usize,
+        position: f64,
         cdf: &[f64],
         first_seed: usize,
     ) -> Option<ChainRunner<PssSample, PssContext<'a>>> {
-        let mut rng = Sampler::new(seed, chain_index as u64, CHAIN_STREAM);
-        let start_index = first_seed + sample_cdf(cdf, rng.next_f64())?;
+        let rng = Sampler::new(seed, chain_index as u64, CHAIN_STREAM);
+        let start_index = first_seed + sample_cdf(cdf, position)?;
         let mut ctx = PssContext::new(scene, &self.bdpt, Self::seed_pss(seed, start_index));
         let start = ctx.evaluate();
         // Chains that start from the same seed sample must still diverge.
@@ -349,9 +351,13 @@ impl Integrator for Pssmlt {
         let chain_range = driver::chain_range(options, self.settings.chains, total_mutations);
         let n_chains = chain_range.len();
         let chains_start = Instant::now();
+        let first_chain = chain_range.start;
         let mut chains: Vec<Box<dyn RunningChain + '_>> = chain_range
             .into_par_iter()
-            .filter_map(|c| self.start_chain(scene, seed, c, &cdf, first_seed))
+            .filter_map(|c| {
+                let position = driver::systematic_position(seed, CHAIN_STREAM, c - first_chain, n_chains);
+                self.start_chain(scene, seed, c, position, &cdf, first_seed)
+            })
             .map(|c| Box::new(c) as Box<dyn RunningChain + '_>)
             .collect();
         let quotas = driver::quotas(total_mutations, chains.len());
