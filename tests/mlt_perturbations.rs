@@ -1015,6 +1015,20 @@ fn one_mutation_vs_bdpt(
     bdpt_runs: u64,
     bdpt_spp: u32,
 ) {
+    one_mutation_restarting_vs_bdpt(rel, kind, runs, seed_paths, bdpt_runs, bdpt_spp, 0);
+}
+
+/// `one_mutation_vs_bdpt` with chains that restart from fresh seed draws every `restart_every`
+/// mutations (0: never; the chains run 64 mutations each).
+fn one_mutation_restarting_vs_bdpt(
+    rel: &str,
+    kind: MutationKind,
+    runs: u64,
+    seed_paths: usize,
+    bdpt_runs: u64,
+    bdpt_spp: u32,
+    restart_every: u64,
+) {
     let mlt_spp = 64;
     let started = std::time::Instant::now();
     let s = comparison_scene(rel);
@@ -1024,7 +1038,9 @@ fn one_mutation_vs_bdpt(
     // mostly which seed paths started chains; more chains average more of them.
     settings.chains = 1024;
     settings.seed_paths = Some(seed_paths);
+    settings.restart_every = restart_every;
     let mlt = PathMlt::new("mlt", bdpt(&s), settings);
+    let mut restarts = 0;
     let mut acceptance = Vec::new();
     let mlt_runs: Vec<Vec<f64>> = (0..runs)
         .map(|seed| {
@@ -1035,6 +1051,7 @@ fn one_mutation_vs_bdpt(
             assert_eq!(out.stats.invalid_samples, 0, "{rel} {}: invalid proposals", kind.name());
             acceptance
                 .push(meta(&out, &format!("hslt.mlt.{}.acceptance", kind.name())).parse::<f64>().unwrap());
+            restarts += meta(&out, "hslt.mlt.restarts").parse::<u64>().unwrap();
             let mut b = blocks(&img);
             b.push(image_mean(&img));
             b
@@ -1089,6 +1106,12 @@ fn one_mutation_vs_bdpt(
         "{rel} {}: the comparison has no power ({d_up:.3}, {d_down:.3})",
         kind.name()
     );
+    // 64 mutations per pixel over 1024 chains: 64 per chain, so restarts every 16 come three times each.
+    let expected_restarts = runs * 1024 * (mlt_spp as u64 - 1).checked_div(restart_every).unwrap_or(0);
+    assert!(
+        restarts as f64 >= 0.99 * expected_restarts as f64 && restarts <= expected_restarts,
+        "{restarts} restarts, expected {expected_restarts}"
+    );
     let tol = 4.0 * (fm_se * fm_se + fb_se * fb_se).sqrt();
     assert!((fm - fb).abs() <= tol, "{rel} {}: mean {fm:.5} vs BDPT {fb:.5} (± {tol:.5})", kind.name());
 }
@@ -1096,6 +1119,14 @@ fn one_mutation_vs_bdpt(
 #[test]
 fn lens_only_chains_reproduce_bdpt_on_the_caustic_scene() {
     one_mutation_vs_bdpt(CAUSTIC, MutationKind::Lens, 16, 65_536, 16, 256);
+}
+
+/// Restarts draw fresh seed paths in proportion to their weights, whatever state a chain leaves: lens
+/// chains, which cannot leave their path's shape, restarting every 16 of their 64 mutations still
+/// reproduce BDPT (restarts that drew seed paths uniformly would not).
+#[test]
+fn restarting_lens_chains_reproduce_bdpt_on_the_caustic_scene() {
+    one_mutation_restarting_vs_bdpt(CAUSTIC, MutationKind::Lens, 16, 65_536, 16, 256, 16);
 }
 
 #[test]

@@ -72,7 +72,7 @@ pub fn scene_hash(path: &Path, defines: &[(String, String)]) -> anyhow::Result<S
 pub fn image_settings(args: &RenderArgs) -> String {
     format!(
         "integrator={:?} spp={:?} time={:?} seed={} max_depth={:?} min_depth={} mis={} seed_paths={:?} \
-         seed_share={:?} chains={:?} mutations={:?} lambda={} specular_threshold={} hslt_direction={} \
+         seed_share={:?} chains={:?} restart_every={:?} mutations={:?} lambda={} specular_threshold={} hslt_direction={} \
          hslt_chains={} p_large={} direct_samples={:?} direct_share={:?} accel={}",
         args.integrator,
         args.spp,
@@ -84,6 +84,7 @@ pub fn image_settings(args: &RenderArgs) -> String {
         args.seed_paths,
         args.seed_share,
         args.chains,
+        args.restart_every,
         args.mutations,
         args.lambda,
         args.specular_threshold,

@@ -82,6 +82,11 @@ pub struct RenderArgs {
     /// (default: 64 for PSSMLT, 4096 for the path-space methods).
     #[arg(long, value_name = "N")]
     pub chains: Option<usize>,
+    /// Path-space MLT: mutations a chain runs between restarts from fresh draws of the seeding pass, so
+    /// a chain caught on a rare bright path holds its energy there only that long; 0 never restarts
+    /// [default: 1024].
+    #[arg(long, value_name = "N")]
+    pub restart_every: Option<u64>,
     /// Path-space MLT (mlt, memlt, hslt, hslt+mlt): the mutation mixture with selection weights, e.g.
     /// bidir:1,lens:1,caustic:1,multichain:1 (known: bidir, lens, caustic, multichain, manifold, hslt,
     /// largestep, hvlens, hvcaustic).
@@ -275,6 +280,7 @@ pub(super) fn run_render(args: RenderArgs) -> anyhow::Result<i32> {
         settings.pssmlt.chains = chains;
         settings.path_chains = Some(chains);
     }
+    settings.restart_every = args.restart_every;
     settings.pssmlt.p_large = args.p_large;
     if (args.direct_samples.is_some() || args.direct_share.is_some())
         && matches!(kind, IntegratorKind::Path | IntegratorKind::Bdpt)

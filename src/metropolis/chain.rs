@@ -263,6 +263,22 @@ impl<S: ChainState, C> Chain<S, C> {
         &self.current
     }
 
+    /// Moves the chain to `start`, a fresh draw from the seeds (so in the stationary distribution
+    /// whatever the current state is), keeping its statistics and random stream; a rejection streak
+    /// ends there. Returns false, leaving the chain where it is, when `start` has no positive, finite
+    /// target or lies outside the support.
+    pub fn restart(&mut self, start: S) -> bool {
+        let start_target = self.target.of(&start);
+        let inside = self.support.as_ref().is_none_or(|support| support(&start));
+        if !(start_target > 0.0 && start_target.is_finite() && inside) {
+            return false;
+        }
+        self.current = start;
+        self.current_target = start_target;
+        self.streak = 0;
+        true
+    }
+
     pub fn current_target(&self) -> f64 {
         self.current_target
     }

@@ -48,6 +48,10 @@ pub trait RunningChain: Send {
     fn rays(&self) -> u64;
     fn shadow_rays(&self) -> u64;
     fn streaks(&self) -> Streaks;
+    /// Restarts from fresh seed draws so far (chains that never restart: 0).
+    fn restarts(&self) -> u64 {
+        0
+    }
 }
 
 /// A `Chain` with its context.

@@ -153,6 +153,9 @@ pub struct IntegratorSettings {
     pub pssmlt: crate::metropolis::PssmltSettings,
     /// Path-space methods: the number of chains (`None`: `metropolis::mlt::DEFAULT_PATH_CHAINS`).
     pub path_chains: Option<usize>,
+    /// Path-space methods: mutations of a chain between restarts (`None`:
+    /// `metropolis::mlt::DEFAULT_RESTART_EVERY`; 0 never restarts).
+    pub restart_every: Option<u64>,
     /// Path-space methods: the share of a time limit the seeding pass runs for (`None`:
     /// `metropolis::mlt::SEED_TIME_SHARE`).
     pub seed_share: Option<f64>,
@@ -172,6 +175,7 @@ impl IntegratorSettings {
             mis: crate::path::MisHeuristic::Power,
             pssmlt: crate::metropolis::PssmltSettings::default(),
             path_chains: None,
+            restart_every: None,
             seed_share: None,
             mutations: None,
             mutation: MutationSettings::default(),
@@ -224,6 +228,8 @@ pub fn make_with(kind: IntegratorKind, settings: &IntegratorSettings) -> Box<dyn
             mlt.seed_share = settings.seed_share.unwrap_or(crate::metropolis::mlt::SEED_TIME_SHARE);
             mlt.direct = direct;
             mlt.chains = settings.path_chains.unwrap_or(crate::metropolis::mlt::DEFAULT_PATH_CHAINS);
+            mlt.restart_every =
+                settings.restart_every.unwrap_or(crate::metropolis::mlt::DEFAULT_RESTART_EVERY);
             mlt.target = settings.pssmlt.target;
             mlt.mutation = settings.mutation.clone();
             Box::new(PathMlt::new(kind.name(), bdpt(), mlt))
