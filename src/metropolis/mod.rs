@@ -11,6 +11,7 @@ pub mod normalization;
 pub mod path_state;
 pub mod pss;
 pub mod pssmlt;
+pub mod seeds;
 
 pub use chain::{
     Chain, ChainState, Failure, Mutation, MutationStats, Proposal, TargetFunction, WeightedMutation,
