@@ -591,7 +591,7 @@ fn half_vector_caustic_turns_the_light_past_held_vertices() {
 
 #[test]
 fn half_vector_caustic_only_chains_reproduce_bdpt_on_the_materials_scene() {
-    one_mutation_vs_bdpt(MATERIALS, MutationKind::HalfVectorCaustic, 16, 32_768, 8, 256);
+    one_mutation_vs_bdpt(MATERIALS, MutationKind::HalfVectorCaustic, 16, 32_768, 8, 256, 0);
 }
 
 #[test]
@@ -626,7 +626,7 @@ fn half_vector_lens_holds_glossy_vertices_below_its_threshold() {
 
 #[test]
 fn half_vector_lens_only_chains_reproduce_bdpt_on_the_materials_scene() {
-    one_mutation_vs_bdpt(MATERIALS, MutationKind::HalfVectorLens, 16, 32_768, 8, 256);
+    one_mutation_vs_bdpt(MATERIALS, MutationKind::HalfVectorLens, 16, 32_768, 8, 256, 0);
 }
 
 #[test]
@@ -1006,21 +1006,9 @@ fn bdpt_blocks(s: &Scene, rel: &str, runs: u64, spp: u32) -> Arc<Vec<Vec<f64>>> 
 
 /// Independent renders (different seeds) of path-space MLT running only `kind`, and of BDPT.
 /// `runs` MLT renders at `mlt_spp` mutations per pixel, each seeded with `seed_paths` BDPT samples,
-/// against `bdpt_runs` BDPT renders at `bdpt_spp`.
+/// against `bdpt_runs` BDPT renders at `bdpt_spp`; the chains (64 mutations each) restart from fresh
+/// seed draws every `restart_every` mutations (0: never).
 fn one_mutation_vs_bdpt(
-    rel: &str,
-    kind: MutationKind,
-    runs: u64,
-    seed_paths: usize,
-    bdpt_runs: u64,
-    bdpt_spp: u32,
-) {
-    one_mutation_restarting_vs_bdpt(rel, kind, runs, seed_paths, bdpt_runs, bdpt_spp, 0);
-}
-
-/// `one_mutation_vs_bdpt` with chains that restart from fresh seed draws every `restart_every`
-/// mutations (0: never; the chains run 64 mutations each).
-fn one_mutation_restarting_vs_bdpt(
     rel: &str,
     kind: MutationKind,
     runs: u64,
@@ -1118,7 +1106,7 @@ fn one_mutation_restarting_vs_bdpt(
 
 #[test]
 fn lens_only_chains_reproduce_bdpt_on_the_caustic_scene() {
-    one_mutation_vs_bdpt(CAUSTIC, MutationKind::Lens, 16, 65_536, 16, 256);
+    one_mutation_vs_bdpt(CAUSTIC, MutationKind::Lens, 16, 65_536, 16, 256, 0);
 }
 
 /// Restarts draw fresh seed paths in proportion to their weights, whatever state a chain leaves: lens
@@ -1126,27 +1114,27 @@ fn lens_only_chains_reproduce_bdpt_on_the_caustic_scene() {
 /// reproduce BDPT (restarts that drew seed paths uniformly would not).
 #[test]
 fn restarting_lens_chains_reproduce_bdpt_on_the_caustic_scene() {
-    one_mutation_restarting_vs_bdpt(CAUSTIC, MutationKind::Lens, 16, 65_536, 16, 256, 16);
+    one_mutation_vs_bdpt(CAUSTIC, MutationKind::Lens, 16, 65_536, 16, 256, 16);
 }
 
 #[test]
 fn caustic_only_chains_reproduce_bdpt_on_the_caustic_scene() {
-    one_mutation_vs_bdpt(CAUSTIC, MutationKind::Caustic, 16, 65_536, 16, 256);
+    one_mutation_vs_bdpt(CAUSTIC, MutationKind::Caustic, 16, 65_536, 16, 256, 0);
 }
 
 #[test]
 fn lens_only_chains_reproduce_bdpt_on_the_cornell_box() {
     // BDPT's noise on the cornell box is a twentieth of the lens-only chains' (block shape ± 0.003 vs
     // ± 0.05), so four reference runs and a smaller seeding pass keep the test short.
-    one_mutation_vs_bdpt(CORNELL, MutationKind::Lens, 16, 32_768, 4, 256);
+    one_mutation_vs_bdpt(CORNELL, MutationKind::Lens, 16, 32_768, 4, 256, 0);
 }
 
 #[test]
 fn multichain_only_chains_reproduce_bdpt_on_the_caustic_scene() {
-    one_mutation_vs_bdpt(CAUSTIC, MutationKind::MultiChain, 16, 65_536, 16, 256);
+    one_mutation_vs_bdpt(CAUSTIC, MutationKind::MultiChain, 16, 65_536, 16, 256, 0);
 }
 
 #[test]
 fn multichain_only_chains_reproduce_bdpt_under_a_sky() {
-    one_mutation_vs_bdpt(SKY_BALL, MutationKind::MultiChain, 32, 65_536, 4, 128);
+    one_mutation_vs_bdpt(SKY_BALL, MutationKind::MultiChain, 32, 65_536, 4, 128, 0);
 }
