@@ -87,8 +87,8 @@ fn scene_with(rel: &str, overrides: &[(&str, &str)]) -> Scene {
 
 /// The scene an image comparison renders. The caustic scene's light (0.04 wide) is reflected and
 /// refracted by the ball into highlights far smaller than a pixel, which a render's 256 samples per
-/// pixel hit a Poisson number of times with a mean well under 1: a run that hits one gains 10–25% of
-/// the image mean in one pixel (BDPT and the seeding pass alike, as only a camera ray can reach them),
+/// pixel hit a Poisson number of times with a mean well under 1: a run that hits one gains about 10%
+/// of the image mean in one pixel (BDPT and the seeding pass alike, as only a camera ray can reach them),
 /// a heavy tail the comparison's spread-based statistic misreads. The comparisons use a light three
 /// times as wide with a ninth of the radiance (the same power), whose highlights are nine times as
 /// likely to be hit: the paths and perturbations are those of the bundled scene.

@@ -340,7 +340,6 @@ impl Integrator for PathMlt {
         let redraws: usize = started.iter().map(|(_, r)| r).sum();
         metadata.push(("hslt.mlt.seed_redraws".into(), redraws.to_string()));
         let restart_every = self.settings.restart_every;
-        let seeds_ref = &seeds;
         let mut chains: Vec<Box<dyn RunningChain + '_>> = started
             .into_iter()
             .enumerate()
@@ -348,7 +347,7 @@ impl Integrator for PathMlt {
             .map(|(index, runner)| match restart_every {
                 every @ 1.. => Box::new(RestartingChain {
                     runner,
-                    seeds: seeds_ref,
+                    seeds: &seeds,
                     seed,
                     index,
                     count: n_chains,
