@@ -368,9 +368,7 @@ fn check_light_walk_reaches_the_camera_solution(rel: &str, defines: &[(&str, &st
         if targets.len() != prepared.h.len() {
             continue;
         }
-        let walk = |start| {
-            walk_from(&s, &x.vertices, &prepared.eta, &targets, &prepared.chart, start, &params.walk, &mut 0)
-        };
+        let walk = |start| walk_from(&s, &x.vertices, &prepared, &targets, start, &params.walk, &mut 0);
         match (walk(TraceStart::Camera), walk(TraceStart::Light)) {
             (Ok(cam), Ok(light)) => {
                 both += 1;

@@ -112,7 +112,13 @@ pub struct ProposalWalk {
 
 impl ProposalWalk {
     pub fn job(&self) -> WalkJob<'_> {
-        WalkJob { path: &self.path, eta: &self.eta, target: &self.target, chart: Some(&self.chart) }
+        WalkJob {
+            path: &self.path,
+            eta: &self.eta,
+            target: &self.target,
+            chart: Some(&self.chart),
+            start: None,
+        }
     }
 }
 

@@ -173,10 +173,13 @@ impl BlockLu {
     /// One step of iterative refinement follows the elimination: without pivoting, a small leading
     /// pivot inflates later ones, and the refinement recovers the digits that growth costs.
     pub fn solve(&self, rhs: &[DVec2]) -> Vec<DVec2> {
-        let mut x = self.solve_generic(rhs, DVec2::ZERO);
-        let jx = self.system.mul_vec(&x);
-        let residual: Vec<DVec2> = rhs.iter().zip(&jx).map(|(r, j)| *r - *j).collect();
-        let correction = self.solve_generic(&residual, DVec2::ZERO);
+        let mut x = rhs.to_vec();
+        self.solve_in_place(&mut x);
+        let mut correction = self.system.mul_vec(&x);
+        for (c, r) in correction.iter_mut().zip(rhs) {
+            *c = *r - *c;
+        }
+        self.solve_in_place(&mut correction);
         if correction.iter().all(|c| c.is_finite()) {
             for (xi, ci) in x.iter_mut().zip(&correction) {
                 *xi += *ci;
@@ -187,27 +190,28 @@ impl BlockLu {
 
     /// Solves J X = rhs with 2×2 blocks on the right (Fig. 1 feeds an identity at one row).
     pub fn solve_matrix(&self, rhs: &[DMat2]) -> Vec<DMat2> {
-        self.solve_generic(rhs, DMat2::ZERO)
+        let mut x = rhs.to_vec();
+        self.solve_in_place(&mut x);
+        x
     }
 
-    fn solve_generic<T>(&self, rhs: &[T], zero: T) -> Vec<T>
+    /// Overwrites the right-hand side with the solution: forward substitution through L, then back
+    /// substitution through U, each row reading only rows already overwritten (no scratch vectors:
+    /// the walk solves once per Newton iteration).
+    fn solve_in_place<T>(&self, v: &mut [T])
     where
         T: Copy + std::ops::Sub<Output = T>,
         DMat2: std::ops::Mul<T, Output = T>,
     {
         let n = self.len();
-        assert_eq!(rhs.len(), n, "one right-hand-side block per row");
-        let mut y = Vec::with_capacity(n);
-        for i in 0..n {
-            let yi = if i == 0 { rhs[0] } else { rhs[i] - self.l[i] * y[i - 1] };
-            y.push(yi);
+        assert_eq!(v.len(), n, "one right-hand-side block per row");
+        for i in 1..n {
+            v[i] = v[i] - self.l[i] * v[i - 1];
         }
-        let mut x = vec![zero; n];
         for i in (0..n).rev() {
-            let r = if i + 1 < n { y[i] - self.system.c[i] * x[i + 1] } else { y[i] };
-            x[i] = self.lambda_inv[i] * r;
+            let r = if i + 1 < n { v[i] - self.system.c[i] * v[i + 1] } else { v[i] };
+            v[i] = self.lambda_inv[i] * r;
         }
-        x
     }
 
     /// Block row `row` of J⁻¹: entry j is ∂x_row/∂h_j with every other half vector and both endpoints

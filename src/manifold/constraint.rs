@@ -302,13 +302,25 @@ pub fn path_constraints(geometry: &[LocalGeometry], eta: &[f64]) -> Result<PathC
 
 /// Only the half vectors of a path's inner vertices.
 pub fn path_half_vectors(geometry: &[LocalGeometry], eta: &[f64]) -> Result<Vec<DVec2>, ConstraintError> {
+    let mut h = Vec::with_capacity(geometry.len().saturating_sub(2));
+    path_half_vectors_into(geometry, eta, &mut h)?;
+    Ok(h)
+}
+
+/// `path_half_vectors` into `out` (cleared first), reusing its allocation.
+pub fn path_half_vectors_into(
+    geometry: &[LocalGeometry],
+    eta: &[f64],
+    out: &mut Vec<DVec2>,
+) -> Result<(), ConstraintError> {
     assert_eq!(geometry.len(), eta.len(), "one eta per path vertex");
-    (1..geometry.len().saturating_sub(1))
-        .map(|i| {
-            half_vector(&geometry[i - 1], &geometry[i], &geometry[i + 1], eta[i])
-                .map_err(|e| with_vertex(e, i))
-        })
-        .collect()
+    out.clear();
+    for i in 1..geometry.len().saturating_sub(1) {
+        let h = half_vector(&geometry[i - 1], &geometry[i], &geometry[i + 1], eta[i])
+            .map_err(|e| with_vertex(e, i))?;
+        out.push(h);
+    }
+    Ok(())
 }
 
 fn with_vertex(e: ConstraintError, vertex: usize) -> ConstraintError {
@@ -336,14 +348,21 @@ pub fn frame_chart(geometry: &[LocalGeometry]) -> Vec<DVec3> {
 /// `path_geometry` with the inner vertices' projection frames built from `chart` (one reference per
 /// inner vertex, from `frame_chart`) instead of from their own normals; `None` is `path_geometry`.
 pub fn path_geometry_in_chart(path: &[Vertex], chart: Option<&[DVec3]>) -> Vec<LocalGeometry> {
-    let mut geometry = path_geometry(path);
+    let mut geometry = Vec::with_capacity(path.len());
+    path_geometry_in_chart_into(path, chart, &mut geometry);
+    geometry
+}
+
+/// `path_geometry_in_chart` into `out` (cleared first), reusing its allocation.
+pub fn path_geometry_in_chart_into(path: &[Vertex], chart: Option<&[DVec3]>, out: &mut Vec<LocalGeometry>) {
+    out.clear();
+    out.extend(path.iter().map(LocalGeometry::from_vertex));
     if let Some(chart) = chart {
         assert_eq!(chart.len() + 2, path.len(), "one chart reference per inner vertex");
-        for (g, reference) in geometry[1..].iter_mut().zip(chart) {
+        for (g, reference) in out[1..].iter_mut().zip(chart) {
             g.frame_ref = *reference;
         }
     }
-    geometry
 }
 
 /// The eta of each path vertex's BSDF (1 for endpoints and non-refracting BSDFs).

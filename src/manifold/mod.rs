@@ -24,5 +24,5 @@ pub use sampling::{
 pub use trace::{direction_per_half_vector, log_dirac_factor, scatter_with_half_vector};
 pub use walk::{
     walk, walk_counting_rays, walk_in_chart_counting_rays, walk_many, walk_many_through, WalkError, WalkJob,
-    WalkResult, WalkSettings,
+    WalkResult, WalkSettings, WalkStart,
 };

@@ -6,8 +6,10 @@
 
 use glam::{DVec2, DVec3};
 
+use super::blocktri::BlockLu;
 use super::constraint::{
-    path_constraints, path_geometry_in_chart, path_half_vectors, ConstraintError, LocalGeometry,
+    path_constraints, path_geometry_in_chart, path_geometry_in_chart_into, path_half_vectors,
+    path_half_vectors_into, ConstraintError, LocalGeometry,
 };
 use super::corrector::{CorrectorPass, RayBatch};
 use crate::accel::RayQuery;
@@ -112,6 +114,19 @@ pub struct WalkJob<'a> {
     pub eta: &'a [f64],
     pub target: &'a [DVec2],
     pub chart: Option<&'a [DVec3]>,
+    /// What the caller has already evaluated at `path` in this chart, or `None`.
+    pub start: Option<WalkStart<'a>>,
+}
+
+/// The start path's local geometry, half vectors and factorised Jacobian, evaluated in the walk's
+/// chart exactly as the walk would evaluate them (`path_geometry_in_chart`, `path_constraints`). The
+/// half-vector mutation has them from preparing its kernel, so the walk's first Newton step reuses
+/// them instead of evaluating the same constraints twice; the iterates are the same bit for bit.
+#[derive(Clone, Copy, Debug)]
+pub struct WalkStart<'a> {
+    pub geometry: &'a [LocalGeometry],
+    pub h: &'a [DVec2],
+    pub lu: &'a BlockLu,
 }
 
 /// Moves the inner vertices of `path` (x_0 and x_k fixed) until their half vectors equal `target`.
@@ -149,9 +164,15 @@ pub fn walk_in_chart_counting_rays(
     settings: &WalkSettings,
     rays: &mut u64,
 ) -> Result<WalkResult, WalkError> {
-    let job = WalkJob { path, eta, target, chart };
+    let job = WalkJob { path, eta, target, chart, start: None };
     let mut results = walk_many(scene, &[job], settings, std::slice::from_mut(rays));
     results.pop().expect("one result per job")
+}
+
+thread_local! {
+    /// The corrector's ray and hit buffers, kept between walks: a mutation walks twice per proposal,
+    /// and fresh buffers cost an allocation per bucket and walk.
+    static RAY_BATCH: std::cell::Cell<RayBatch> = std::cell::Cell::new(RayBatch::default());
 }
 
 /// Runs all `jobs` together: each round, every unfinished walk contributes the rays of its current
@@ -194,7 +215,7 @@ pub fn walk_many_through(
             None => live.push((j, state)),
         }
     }
-    let mut batch = RayBatch::default();
+    let mut batch = RAY_BATCH.take();
     let mut slots = Vec::with_capacity(live.len());
     while !live.is_empty() {
         batch.clear();
@@ -217,6 +238,7 @@ pub fn walk_many_through(
             }
         });
     }
+    RAY_BATCH.set(batch);
     let mut results: Vec<Result<WalkResult, WalkError>> =
         results.into_iter().map(|r| r.expect("every job finishes")).collect();
     if !settings.visibility_every_pass {
@@ -276,17 +298,33 @@ struct WalkState {
     candidate: usize,
     /// This iteration's Newton direction, and the geometry of `current` it was computed at.
     dx: Vec<DVec2>,
+    /// Whether `dx` is the Newton direction at `current`: after an iteration whose candidates all
+    /// failed the iterate has not moved, and the next iteration traces a smaller fraction of it.
+    dx_current: bool,
     geometry: Vec<LocalGeometry>,
     /// The pass of iteration `iteration`, or an empty one before the first.
     pass: CorrectorPass,
+    /// A traced candidate's geometry and half vectors while it is judged; swapped with `geometry`
+    /// and `h` when it is taken, so judging allocates nothing.
+    candidate_geometry: Vec<LocalGeometry>,
+    candidate_h: Vec<DVec2>,
 }
 
 impl WalkState {
     fn start(job: &WalkJob, settings: &WalkSettings) -> Result<WalkState, WalkError> {
         let (path, target) = (job.path, job.target);
         assert!(path.len() >= 3 && target.len() == path.len() - 2, "one target per inner vertex");
-        let geometry = path_geometry_in_chart(path, job.chart);
-        let h = path_half_vectors(&geometry, job.eta)?;
+        let (geometry, h) = match job.start {
+            Some(start) => {
+                debug_assert_eq!(start.geometry.len(), path.len(), "start geometry of another path");
+                (start.geometry.to_vec(), start.h.to_vec())
+            }
+            None => {
+                let geometry = path_geometry_in_chart(path, job.chart);
+                let h = path_half_vectors(&geometry, job.eta)?;
+                (geometry, h)
+            }
+        };
         let error = max_error(&h, target);
         let tolerance =
             settings.tolerance.min(settings.relative_tolerance * error).max(settings.precision_floor);
@@ -300,8 +338,11 @@ impl WalkState {
             iteration: 0,
             candidate: 0,
             dx: Vec::new(),
+            dx_current: false,
             geometry,
             pass: CorrectorPass::idle(),
+            candidate_geometry: Vec::with_capacity(path.len()),
+            candidate_h: Vec::with_capacity(target.len()),
         })
     }
 
@@ -335,16 +376,27 @@ impl WalkState {
         if self.iteration >= settings.max_iterations {
             return Some(Err(WalkError::DidNotConverge));
         }
-        let jacobian = match path_constraints(&self.geometry, job.eta) {
-            Ok(constraints) => constraints.jacobian,
-            Err(e) => return Some(Err(e.into())),
-        };
-        let lu = match jacobian.into_factor() {
-            Ok(lu) => lu,
-            Err(s) => return Some(Err(WalkError::Singular { row: s.row })),
-        };
-        let dh: Vec<DVec2> = job.target.iter().zip(&self.h).map(|(t, h)| *t - *h).collect();
-        self.dx = lu.solve(&dh);
+        if !self.dx_current {
+            let evaluated;
+            let lu = match job.start {
+                // No step taken yet: the iterate is the start path the caller factorised.
+                Some(start) if self.errors.len() == 1 => start.lu,
+                _ => {
+                    let jacobian = match path_constraints(&self.geometry, job.eta) {
+                        Ok(constraints) => constraints.jacobian,
+                        Err(e) => return Some(Err(e.into())),
+                    };
+                    evaluated = match jacobian.into_factor() {
+                        Ok(lu) => lu,
+                        Err(s) => return Some(Err(WalkError::Singular { row: s.row })),
+                    };
+                    &evaluated
+                }
+            };
+            let dh: Vec<DVec2> = job.target.iter().zip(&self.h).map(|(t, h)| *t - *h).collect();
+            self.dx = lu.solve(&dh);
+            self.dx_current = true;
+        }
         self.restart_pass(if settings.candidates_at_once { CANDIDATES } else { 1 }, settings);
         None
     }
@@ -376,20 +428,21 @@ impl WalkState {
             if pass.status[c].is_err() {
                 continue;
             }
-            let new_geometry = path_geometry_in_chart(&pass.built[c], job.chart);
-            let Ok(new_h) = path_half_vectors(&new_geometry, job.eta) else {
+            path_geometry_in_chart_into(&pass.built[c], job.chart, &mut self.candidate_geometry);
+            if path_half_vectors_into(&self.candidate_geometry, job.eta, &mut self.candidate_h).is_err() {
                 continue;
-            };
-            let new_error = max_error(&new_h, job.target);
+            }
+            let new_error = max_error(&self.candidate_h, job.target);
             if new_error < self.error {
                 let fraction = pass.fractions[c];
-                // The old iterate's buffer becomes this candidate's for the next pass.
+                // The old iterate's buffers become this candidate's for the next pass.
                 std::mem::swap(&mut self.current, &mut pass.built[c]);
-                self.h = new_h;
-                self.geometry = new_geometry;
+                std::mem::swap(&mut self.h, &mut self.candidate_h);
+                std::mem::swap(&mut self.geometry, &mut self.candidate_geometry);
                 self.error = new_error;
                 self.errors.push(new_error);
                 self.step = (fraction * 2.0).min(1.0);
+                self.dx_current = false;
                 return true;
             }
         }

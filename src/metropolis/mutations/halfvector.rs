@@ -12,8 +12,8 @@ use super::subchain::walkable;
 pub use super::subchain::{sub_chains, Chain};
 use crate::manifold::{
     bandwidth_shares, frame_chart, invert_block, log_dirac_factor, path_constraints, path_etas,
-    path_geometry, path_geometry_in_chart, step_sizes, walk_in_chart_counting_rays, LocalGeometry, StepSizes,
-    WalkError, WalkResult, WalkSettings,
+    path_geometry, path_geometry_in_chart, step_sizes, walk_in_chart_counting_rays, walk_many, BlockLu,
+    LocalGeometry, StepSizes, WalkError, WalkJob, WalkResult, WalkSettings, WalkStart,
 };
 use crate::path::{PathView, ScatterClass, Vertex, VertexKind};
 use crate::sampling::{Distribution1D, Sampler};
@@ -106,32 +106,39 @@ impl TraceDirection {
 }
 
 /// The Newton walk of `path` to `target` (one per inner vertex, camera to light order, coordinates in
-/// `chart`, see `walk_in_chart_counting_rays`), with the corrector's rays cast from the chosen end.
+/// the chart of `prepared`, which was prepared from `path`), with the corrector's rays cast from the
+/// chosen end. From the camera the walk starts from what preparing evaluated (`WalkStart`).
 /// From the light it walks the reversed path and reverses the result: every inner vertex's half
 /// vector is the same quantity both ways (reflection is symmetric in wi, wo; for refraction
 /// H~ = wi + η·wo becomes wo + wi/η = H~/η, the same direction, and frames are per vertex), so the
 /// targets, the constraint and its Jacobian (rows and columns reversed blockwise, the same |det J|)
 /// are unchanged, and the walk's side checks and endpoint handling are symmetric in the two ends.
-#[allow(clippy::too_many_arguments)]
 pub fn walk_from(
     scene: &Scene,
     path: &[Vertex],
-    eta: &[f64],
+    prepared: &PreparedPath,
     target: &[DVec2],
-    chart: &[DVec3],
     start: TraceStart,
     settings: &WalkSettings,
     rays: &mut u64,
 ) -> Result<WalkResult, WalkError> {
     match start {
         TraceStart::Camera => {
-            walk_in_chart_counting_rays(scene, path, eta, target, Some(chart), settings, rays)
+            let job = WalkJob {
+                path,
+                eta: &prepared.eta,
+                target,
+                chart: Some(&prepared.chart),
+                start: Some(WalkStart { geometry: &prepared.geometry, h: &prepared.h, lu: &prepared.lu }),
+            };
+            let mut results = walk_many(scene, &[job], settings, std::slice::from_mut(rays));
+            results.pop().expect("one result per job")
         }
         TraceStart::Light => {
             let reversed = |v: &[Vertex]| v.iter().rev().copied().collect::<Vec<_>>();
-            let eta_rev: Vec<f64> = eta.iter().rev().copied().collect();
+            let eta_rev: Vec<f64> = prepared.eta.iter().rev().copied().collect();
             let target_rev: Vec<DVec2> = target.iter().rev().copied().collect();
-            let chart_rev: Vec<DVec3> = chart.iter().rev().copied().collect();
+            let chart_rev: Vec<DVec3> = prepared.chart.iter().rev().copied().collect();
             let mut result = walk_in_chart_counting_rays(
                 scene,
                 &reversed(path),
@@ -225,6 +232,10 @@ pub struct PreparedPath {
     /// (`manifold::frame_chart`). A proposal's walk holds it, and the other path's half vectors and
     /// |det J| are evaluated in it (`in_chart`) for this kernel's density.
     pub chart: Vec<DVec3>,
+    /// The path's local geometry in `chart` and its factorised Jacobian J (whose determinant is
+    /// `log_det`): the forward walk from this path starts from them (`WalkStart`).
+    pub geometry: Vec<LocalGeometry>,
+    pub lu: BlockLu,
 }
 
 /// A path's half vectors and ln |det J| in another path's frame chart.
@@ -365,7 +376,7 @@ impl HalfVectorMutation {
             bandwidths.iter().map(|&bw| step_sizes(bw, DVec2::NAN, DVec2::NAN)).collect()
         };
         let chart = frame_chart(&geometry);
-        Ok(PreparedPath { eta, h: constraints.h, log_det, log_dirac, held, steps, chart })
+        Ok(PreparedPath { eta, h: constraints.h, log_det, log_dirac, held, steps, chart, geometry, lu })
     }
 
     /// The chains a proposal from `path` chooses among, with their unnormalised weights: every
@@ -473,9 +484,8 @@ impl<'a> Mutation<PathState, PathContext<'a>> for HalfVectorMutation {
         let forward = walk_from(
             scene,
             x_chain,
-            &prepared_x.eta,
+            &prepared_x,
             &targets,
-            &prepared_x.chart,
             start_x,
             &self.params.walk,
             &mut ctx.counters.rays,
@@ -515,9 +525,8 @@ impl<'a> Mutation<PathState, PathContext<'a>> for HalfVectorMutation {
         let back = walk_from(
             scene,
             y_chain,
-            &prepared_y.eta,
+            &prepared_y,
             &x_in_y.h,
-            &prepared_y.chart,
             self.params.direction.start_for(y_chain),
             &self.params.walk,
             &mut ctx.counters.rays,
