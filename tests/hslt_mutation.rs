@@ -3,7 +3,9 @@
 //! that run only this mutation reproduce BDPT, and stiff input is rejected and counted, never NaN.
 
 use hslt::cli::load_scene;
-use hslt::manifold::{path_constraints, path_etas, path_geometry, path_geometry_in_chart};
+use hslt::manifold::{
+    path_constraints, path_etas, path_geometry, path_geometry_in_chart, walk_in_chart_counting_rays,
+};
 use hslt::metropolis::mutations::halfvector::Chain as MovedChain;
 use hslt::metropolis::mutations::halfvector::{
     applicable, relative_mismatch, walk_from, HalfVectorMutation, HalfVectorParams, TraceDirection,
@@ -323,6 +325,77 @@ fn detailed_balance_on_jewelry_with_the_direction_rule() {
     assert!(
         (0.03..=0.97).contains(&from_light),
         "the rule did not use both ends: {from_light:.3} from the light"
+    );
+}
+
+#[test]
+fn a_walk_from_the_prepared_kernel_is_the_walk_that_evaluates_its_start() {
+    // `walk_from` hands the walk what preparing X evaluated (geometry, half vectors and the factorised
+    // J, `WalkStart`); without it the walk evaluates them itself. The two must be the same walk bit for
+    // bit: a start from another chart or another path, or a Jacobian not of the iterate the walk steps
+    // from, changes the iterates.
+    let s = scene("scenes/jewelry/scene.xml", &[("resx", "64"), ("resy", "48"), ("max_depth", "5")]);
+    let bdpt = bdpt(&s);
+    let seeds = PathSeeds::run(&s, &bdpt, 37, 16_384, &AtomicBool::new(false));
+    let params = HalfVectorParams::default();
+    let mutation = HalfVectorMutation::new(params);
+    let mut rng = Sampler::new(37, 0, 0);
+    let (mut compared, mut converged, mut iterations) = (0, 0, 0);
+    for _ in 0..6000 {
+        let Some(x) = seeds.draw(&s, &bdpt, 37, rng.next_f64()) else { continue };
+        if !applicable(&x.vertices) {
+            continue;
+        }
+        let Ok(prepared) = mutation.prepare(&s, &x.vertices, x.film) else { continue };
+        let targets: Option<Vec<_>> = prepared
+            .steps
+            .iter()
+            .zip(&prepared.h)
+            .zip(&prepared.held)
+            .map(|((step, centre), &held)| {
+                if held {
+                    return Some(glam::DVec2::ZERO);
+                }
+                step.proposal(*centre)?.sample([rng.next_f64(), rng.next_f64()])
+            })
+            .collect();
+        let Some(targets) = targets else { continue };
+        let (mut rays_prepared, mut rays_evaluated) = (0, 0);
+        let prepared_walk = walk_from(
+            &s,
+            &x.vertices,
+            &prepared,
+            &targets,
+            TraceStart::Camera,
+            &params.walk,
+            &mut rays_prepared,
+        );
+        let evaluated_walk = walk_in_chart_counting_rays(
+            &s,
+            &x.vertices,
+            &prepared.eta,
+            &targets,
+            Some(&prepared.chart),
+            &params.walk,
+            &mut rays_evaluated,
+        );
+        compared += 1;
+        assert_eq!(rays_prepared, rays_evaluated, "the walks cast different rays");
+        match (prepared_walk, evaluated_walk) {
+            (Ok(a), Ok(b)) => {
+                converged += 1;
+                iterations += a.iterations;
+                assert_eq!((a.iterations, &a.errors, &a.h), (b.iterations, &b.errors, &b.h));
+                assert!(a.path.iter().zip(&b.path).all(|(u, v)| u.p == v.p), "the walks reached other paths");
+            }
+            (Err(a), Err(b)) => assert_eq!(a, b),
+            (a, b) => panic!("one walk converged, the other did not: {:?} / {:?}", a.err(), b.err()),
+        }
+    }
+    eprintln!("{compared} walks compared, {converged} converged, {iterations} Newton iterations among them");
+    assert!(
+        compared > 500 && converged > 200 && iterations > converged,
+        "too few walks: {compared}, {converged}"
     );
 }
 
