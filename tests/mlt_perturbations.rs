@@ -1028,7 +1028,7 @@ fn one_mutation_vs_bdpt(
     settings.seed_paths = Some(seed_paths);
     settings.restart_every = restart_every;
     let mlt = PathMlt::new("mlt", bdpt(&s), settings);
-    let mut restarts = 0;
+    let (mut restarts, mut failed_restarts) = (0, 0);
     let mut acceptance = Vec::new();
     let mlt_runs: Vec<Vec<f64>> = (0..runs)
         .map(|seed| {
@@ -1040,6 +1040,7 @@ fn one_mutation_vs_bdpt(
             acceptance
                 .push(meta(&out, &format!("hslt.mlt.{}.acceptance", kind.name())).parse::<f64>().unwrap());
             restarts += meta(&out, "hslt.mlt.restarts").parse::<u64>().unwrap();
+            failed_restarts += meta(&out, "hslt.mlt.restarts_failed").parse::<u64>().unwrap();
             let mut b = blocks(&img);
             b.push(image_mean(&img));
             b
@@ -1094,11 +1095,17 @@ fn one_mutation_vs_bdpt(
         "{rel} {}: the comparison has no power ({d_up:.3}, {d_down:.3})",
         kind.name()
     );
-    // 64 mutations per pixel over 1024 chains: 64 per chain, so restarts every 16 come three times each.
+    // 64 mutations per pixel over 1024 chains: 64 per chain, so restarts every 16 come three times
+    // each; every restart point either restarts the chain or is counted as failed.
     let expected_restarts = runs * 1024 * (mlt_spp as u64 - 1).checked_div(restart_every).unwrap_or(0);
+    assert_eq!(
+        restarts + failed_restarts,
+        expected_restarts,
+        "{restarts} restarts and {failed_restarts} failed"
+    );
     assert!(
-        restarts as f64 >= 0.99 * expected_restarts as f64 && restarts <= expected_restarts,
-        "{restarts} restarts, expected {expected_restarts}"
+        restarts as f64 >= 0.99 * expected_restarts as f64,
+        "{restarts} restarts, {failed_restarts} failed, of {expected_restarts}"
     );
     let tol = 4.0 * (fm_se * fm_se + fb_se * fb_se).sqrt();
     assert!((fm - fb).abs() <= tol, "{rel} {}: mean {fm:.5} vs BDPT {fb:.5} (± {tol:.5})", kind.name());

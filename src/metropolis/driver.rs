@@ -52,6 +52,11 @@ pub trait RunningChain: Send {
     fn restarts(&self) -> u64 {
         0
     }
+    /// Restart points passed whose seed draw gave no path that evaluates, so the chain went on from
+    /// where it was (unbiased either way: restart points do not depend on the state).
+    fn failed_restarts(&self) -> u64 {
+        0
+    }
 }
 
 /// A `Chain` with its context.

@@ -185,6 +185,10 @@ impl RunningChain for RestartingChain<'_> {
     fn restarts(&self) -> u64 {
         self.restarts
     }
+
+    fn failed_restarts(&self) -> u64 {
+        self.rounds - self.restarts
+    }
 }
 
 impl PathMlt {
@@ -394,6 +398,8 @@ impl Integrator for PathMlt {
         metadata.push(("hslt.mlt.restart_every".into(), restart_every.to_string()));
         metadata
             .push(("hslt.mlt.restarts".into(), chains.iter().map(|c| c.restarts()).sum::<u64>().to_string()));
+        let failed_restarts: u64 = chains.iter().map(|c| c.failed_restarts()).sum();
+        metadata.push(("hslt.mlt.restarts_failed".into(), failed_restarts.to_string()));
         metadata.push(("hslt.mlt.mutations".into(), outcome.mutations.to_string()));
         metadata.extend(driver::mutation_metadata(&mutation_stats));
         metadata.extend(driver::streak_metadata(&outcome.streaks, outcome.mutations));
