@@ -35,27 +35,37 @@ pub fn configure() {
         }),
     };
 
+    // The shim becomes a shared library of its own, linked against OpenImageIO, which the binary
+    // opens on first use (src/image/oiio.rs): linked into the binary, OpenImageIO's 250-odd
+    // dependencies were loaded into every process.
     let mut build = cc::Build::new();
-    build.cpp(true).std("c++17").file(SHIM).warnings(true);
+    build.cpp(true).std("c++17").file(SHIM).warnings(true).pic(true);
     for dir in &location.include_dirs {
         build.include(dir);
     }
     for (name, value) in &location.defines {
         build.define(name, value.as_deref());
     }
-    // Emits the static shim library and the C++ standard library link lines first, so that the
-    // OpenImageIO libraries below come after the shim that needs them.
-    build.compile("hslt_oiio_shim");
-
+    let objects = build.compile_intermediates();
+    let out_dir = PathBuf::from(env::var_os("OUT_DIR").expect("cargo sets OUT_DIR"));
+    let shim = out_dir.join("libhslt_oiio.so");
+    let mut link = build.get_compiler().to_command();
+    link.arg("-shared").arg("-o").arg(&shim).args(&objects).arg("-Wl,--no-undefined");
     for dir in &location.lib_dirs {
-        println!("cargo:rustc-link-search=native={}", dir.display());
+        link.arg(format!("-L{}", dir.display()));
     }
     for lib in &location.libs {
-        println!("cargo:rustc-link-lib=dylib={lib}");
+        link.arg(format!("-l{lib}"));
     }
     if let Some(rpath) = &location.rpath {
-        println!("cargo:rustc-link-arg=-Wl,-rpath,{}", rpath.display());
+        link.arg(format!("-Wl,-rpath,{}", rpath.display()));
     }
+    let status =
+        link.status().unwrap_or_else(|e| panic!("could not run the C++ compiler to link {SHIM}: {e}"));
+    if !status.success() {
+        panic!("linking {} failed ({status})", shim.display());
+    }
+    println!("cargo:rustc-env=HSLT_OIIO_SHIM_BUILT={}", shim.display());
 }
 
 fn from_prefix(prefix: PathBuf) -> OiioLocation {

@@ -61,8 +61,11 @@ fn parse_args(args: Vec<OsString>) -> Cli {
 
 /// `<version>` followed by one line each for Embree, OpenImageIO and the Cargo features.
 fn long_version() -> String {
-    let oiio = hslt::image::oiio_version()
-        .unwrap_or_else(|| "not built in (feature `oiio` off: EXR and PNG only)".to_string());
+    let oiio = match (hslt::image::oiio_version(), hslt::image::oiio_load_error()) {
+        (Some(version), _) => version,
+        (None, Some(why)) => format!("unavailable: {why}"),
+        (None, None) => "not built in (feature `oiio` off: EXR and PNG only)".to_string(),
+    };
     let features: Vec<&str> = [
         ("oiio", cfg!(feature = "oiio")),
         ("embree4", cfg!(feature = "embree4")),

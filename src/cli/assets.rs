@@ -128,6 +128,16 @@ pub fn write_assets(dir: &Path) -> anyhow::Result<Vec<PathBuf>> {
         std::fs::write(&path, &asset.contents).with_context(|| format!("cannot write {}", path.display()))?;
         written.push(path);
     }
+    // The OpenImageIO shim the binary opens on first use; the package installs it in /usr/lib/hslt/.
+    #[cfg(feature = "oiio")]
+    {
+        let built = crate::image::built_oiio_shim_path();
+        let path = dir.join(built.file_name().expect("the shim path names a file"));
+        std::fs::copy(built, &path).with_context(|| {
+            format!("cannot copy the OpenImageIO shim {} to {}", built.display(), path.display())
+        })?;
+        written.push(path);
+    }
     Ok(written)
 }
 

@@ -264,6 +264,7 @@ fn check_output_paths(outputs: &[PathBuf]) -> anyhow::Result<()> {
             Some("exr" | "png" | "jpg" | "jpeg" | "tif" | "tiff" | "hdr") => {}
             _ => bail!("{}: unsupported output format (use .exr, .png, .jpg, .tif or .hdr)", o.display()),
         }
+        crate::image::check_output_format(o)?;
         if let Some(dir) = o.parent().filter(|d| !d.as_os_str().is_empty()) {
             if !dir.is_dir() {
                 bail!("{}: the output directory {} does not exist", o.display(), dir.display());

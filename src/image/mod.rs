@@ -182,7 +182,14 @@ fn output_format(path: &Path) -> anyhow::Result<Format> {
     })
 }
 
-/// Version of the linked OpenImageIO ("2.4.7"), or `None` when built without the `oiio` feature.
+/// The OpenImageIO shim library as this build linked it (`generate-assets` copies it for the package).
+#[cfg(feature = "oiio")]
+pub fn built_oiio_shim_path() -> &'static Path {
+    oiio::built_shim_path()
+}
+
+/// Version of the OpenImageIO the shim loads ("2.4.7"), or `None` when built without the `oiio`
+/// feature or when the shim library cannot be loaded.
 pub fn oiio_version() -> Option<String> {
     #[cfg(feature = "oiio")]
     {
@@ -192,6 +199,31 @@ pub fn oiio_version() -> Option<String> {
     {
         None
     }
+}
+
+/// Why the OpenImageIO shim cannot be loaded (`None`: it loads, or the build has no `oiio` feature).
+pub fn oiio_load_error() -> Option<String> {
+    #[cfg(feature = "oiio")]
+    {
+        oiio::load_error()
+    }
+    #[cfg(not(feature = "oiio"))]
+    {
+        None
+    }
+}
+
+/// Checks before a render that an image can be written at `path`: a known extension, and for the
+/// formats OpenImageIO writes, a shim that loads (so that a missing one is an error up front, not
+/// after the render).
+pub fn check_output_format(path: &Path) -> anyhow::Result<()> {
+    let format = output_format(path)?;
+    if format != Format::Exr && cfg!(feature = "oiio") {
+        if let Some(why) = oiio_load_error() {
+            anyhow::bail!("{}: cannot write this format: {why}", path.display());
+        }
+    }
+    Ok(())
 }
 
 /// Writes `img` to `path`, format chosen by extension (see [`write_image_with_report`]).
