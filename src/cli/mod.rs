@@ -259,11 +259,6 @@ fn load(args: &SceneArgs, accel: AccelKind) -> anyhow::Result<Scene> {
 
 fn check_output_paths(outputs: &[PathBuf]) -> anyhow::Result<()> {
     for o in outputs {
-        let ext = o.extension().and_then(|e| e.to_str()).map(|e| e.to_ascii_lowercase());
-        match ext.as_deref() {
-            Some("exr" | "png" | "jpg" | "jpeg" | "tif" | "tiff" | "hdr") => {}
-            _ => bail!("{}: unsupported output format (use .exr, .png, .jpg, .tif or .hdr)", o.display()),
-        }
         crate::image::check_output_format(o)?;
         if let Some(dir) = o.parent().filter(|d| !d.as_os_str().is_empty()) {
             if !dir.is_dir() {
