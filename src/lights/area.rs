@@ -19,6 +19,10 @@ pub struct AreaLight {
     pub radiance: Texture,
     triangles: Distribution1D,
     total_area: f32,
+    /// Per triangle: the geometric normal, and the shading normal where it is the same over the
+    /// whole triangle (no vertex normals, or three equal ones). Light sampling builds a surface
+    /// point per shadow ray, and recomputing these there was a tenth of a path tracer's time.
+    triangle_normals: Vec<(Vec3, Option<Vec3>)>,
 }
 
 /// A point on an emitter with what is needed to evaluate emission there.
@@ -42,7 +46,21 @@ impl AreaLight {
         let triangles = Distribution1D::new(&areas)
             .ok_or_else(|| props.error(format!("the emitting shape '{}' has zero area", mesh.name)))?;
         let total_area = triangles.total() as f32;
-        Ok(AreaLight { mesh, shape, radiance, triangles, total_area })
+        let triangle_normals =
+            (0..mesh.triangle_count()).map(|tri| Self::triangle_normals(&mesh, tri)).collect();
+        Ok(AreaLight { mesh, shape, radiance, triangles, total_area, triangle_normals })
+    }
+
+    fn triangle_normals(mesh: &TriangleMesh, tri: usize) -> (Vec3, Option<Vec3>) {
+        let ng = mesh.geometric_normal(tri);
+        let flat = match &mesh.normals {
+            None => Some(ng),
+            Some(n) => {
+                let [i0, i1, i2] = mesh.indices[tri].map(|i| n[i as usize]);
+                (i0 == i1 && i1 == i2).then(|| i0.try_normalize().unwrap_or(ng))
+            }
+        };
+        (ng, flat)
     }
 
     pub fn total_area(&self) -> f32 {
@@ -75,10 +93,11 @@ impl AreaLight {
         let [i0, i1, i2] = m.indices[tri].map(|i| i as usize);
         let b0 = 1.0 - b.x - b.y;
         let p = m.positions[i0] * b0 + m.positions[i1] * b.x + m.positions[i2] * b.y;
-        let ng = m.geometric_normal(tri);
-        let ns = match &m.normals {
-            Some(n) => (n[i0] * b0 + n[i1] * b.x + n[i2] * b.y).try_normalize().unwrap_or(ng),
-            None => ng,
+        let (ng, flat) = self.triangle_normals[tri];
+        let ns = match (flat, &m.normals) {
+            (Some(ns), _) => ns,
+            (None, Some(n)) => (n[i0] * b0 + n[i1] * b.x + n[i2] * b.y).try_normalize().unwrap_or(ng),
+            (None, None) => ng,
         };
         let uv = match &m.uvs {
             Some(t) => t[i0] * b0 + t[i1] * b.x + t[i2] * b.y,

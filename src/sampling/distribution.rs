@@ -49,11 +49,23 @@ impl Distribution1D {
     /// Picks an index with probability proportional to its weight; also returns `u` rescaled to [0,1)
     /// within the chosen interval, so one random number can be reused.
     pub fn sample(&self, u: f32) -> (usize, f32) {
+        let n = self.len();
+        if n == 1 {
+            // One entry (a scene's only light): the interval is [0, 1) itself.
+            return (0, u.clamp(0.0, 1.0));
+        }
         let u = u as f64;
-        // First index whose upper CDF bound exceeds u, skipping zero-weight entries.
-        let mut idx = self.cdf.partition_point(|&c| c <= u).saturating_sub(1);
-        idx = idx.min(self.len() - 1);
-        while idx + 1 < self.len() && self.cdf[idx + 1] == self.cdf[idx] {
+        // First index whose upper CDF bound exceeds u, skipping zero-weight entries. Few entries (a
+        // light's triangles, a scene's lights) are counted without branches: the choice is random, so
+        // a binary search's branches mispredict half the time.
+        let upper = &self.cdf[1..];
+        let mut idx = if n <= 16 {
+            upper.iter().map(|&c| usize::from(c <= u)).sum()
+        } else {
+            upper.partition_point(|&c| c <= u)
+        };
+        idx = idx.min(n - 1);
+        while idx + 1 < n && self.cdf[idx + 1] == self.cdf[idx] {
             idx += 1;
         }
         let lo = self.cdf[idx];
