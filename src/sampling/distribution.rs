@@ -95,4 +95,28 @@ mod tests {
         assert!(Distribution1D::new(&[0.0, 0.0]).is_none());
         assert!(Distribution1D::new(&[f64::NAN]).is_none());
     }
+
+    #[test]
+    fn counting_and_binary_search_choose_the_same_entries() {
+        // Up to 16 entries are counted, more are searched; both must give the first entry whose upper
+        // bound exceeds u, never one of zero weight, and the same rescaled u.
+        let pattern = [0.0, 2.0, 0.0, 0.0, 1.0, 3.0, 0.0, 0.5];
+        for n in [1, 2, 5, 8, 16, 17, 40] {
+            let weights: Vec<f64> =
+                (0..n).map(|i| pattern[i % pattern.len()] + if i == 1 { 0.0 } else { 0.1 }).collect();
+            let weights: Vec<f64> =
+                weights.iter().enumerate().map(|(i, &w)| if i % 3 == 2 { 0.0 } else { w }).collect();
+            let d = Distribution1D::new(&weights).unwrap();
+            for k in 0..4096 {
+                let u = k as f32 / 4096.0;
+                let (idx, r) = d.sample(u);
+                let expected = (0..n).find(|&i| d.cdf[i + 1] > u as f64).unwrap();
+                assert_eq!(idx, expected, "n = {n}, u = {u}");
+                assert!(weights[idx] > 0.0);
+                let lo = d.cdf[idx];
+                let want = ((u as f64 - lo) / (d.cdf[idx + 1] - lo)).clamp(0.0, 1.0 - f64::EPSILON) as f32;
+                assert_eq!(r, want, "n = {n}, u = {u}");
+            }
+        }
+    }
 }
