@@ -195,6 +195,11 @@ impl Pssmlt {
         PssSampler::new(Sampler::new(seed, index as u64, SEED_STREAM), STREAM_COUNT)
     }
 
+    /// Turns `pss` into `seed_pss(seed, index)` without allocating.
+    pub fn restart_seed_pss(pss: &mut PssSampler, seed: u64, index: usize) {
+        pss.restart(Sampler::new(seed, index as u64, SEED_STREAM));
+    }
+
     fn mutations(&self) -> Vec<WeightedMutation<PssSample, PssContext<'_>>> {
         let p_large = self.settings.p_large.clamp(0.0, 1.0);
         let target = self.settings.target;
@@ -296,10 +301,10 @@ impl Integrator for Pssmlt {
                 if cancel.load(Ordering::Relaxed) {
                     return (vec![0.0; range.len()], 0, rays);
                 }
+                let mut ctx = PssContext::new(scene, &self.bdpt, Self::seed_pss(seed, range.start));
                 for i in range {
-                    let mut ctx = PssContext::new(scene, &self.bdpt, Self::seed_pss(seed, i));
+                    Self::restart_seed_pss(&mut ctx.pss, seed, i);
                     let sample = ctx.evaluate();
-                    rays += ctx.counters;
                     if sample.is_valid() {
                         targets.push(target.of(&sample));
                     } else {
@@ -307,6 +312,7 @@ impl Integrator for Pssmlt {
                         targets.push(0.0);
                     }
                 }
+                rays += ctx.counters;
                 (targets, invalid, rays)
             })
             .collect();

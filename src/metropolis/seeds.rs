@@ -140,13 +140,14 @@ impl PathSeeds {
                     return out;
                 }
                 let chunk_end = first + ((chunk + 1) * SEED_CHUNK).min(n);
-                for i in first + chunk * SEED_CHUNK..chunk_end {
+                let chunk_start = first + chunk * SEED_CHUNK;
+                let mut ctx = PssContext::new(scene, bdpt, Pssmlt::seed_pss(seed, chunk_start));
+                for i in chunk_start..chunk_end {
                     if (i - first) % group == 0 {
                         out.groups.push((i, 0.0));
                     }
-                    let mut ctx = PssContext::new(scene, bdpt, Pssmlt::seed_pss(seed, i));
+                    Pssmlt::restart_seed_pss(&mut ctx.pss, seed, i);
                     let _ = ctx.evaluate();
-                    out.rays += ctx.counters;
                     let group = &mut out.groups.last_mut().expect("a group per sample").1;
                     for c in ctx.contributions() {
                         match candidate_luminance(c) {
@@ -166,6 +167,7 @@ impl PathSeeds {
                         }
                     }
                 }
+                out.rays += ctx.counters;
                 out
             })
             .collect();
@@ -266,8 +268,9 @@ impl PathSeeds {
         let group_end = self.group_first.get(g + 1).copied().unwrap_or(self.end);
         // The last positive strategy of the group, should rounding leave `rest` beyond the group's sum.
         let mut last = None;
+        let mut ctx = PssContext::new(scene, bdpt, Pssmlt::seed_pss(seed, self.group_first[g]));
         'samples: for i in self.group_first[g]..group_end {
-            let mut ctx = PssContext::new(scene, bdpt, Pssmlt::seed_pss(seed, i));
+            Pssmlt::restart_seed_pss(&mut ctx.pss, seed, i);
             let _ = ctx.evaluate();
             for (j, c) in ctx.contributions().iter().enumerate() {
                 if let Ok(y) = candidate_luminance(c) {
@@ -282,7 +285,7 @@ impl PathSeeds {
             }
         }
         let (i, j) = last?;
-        let mut ctx = PssContext::new(scene, bdpt, Pssmlt::seed_pss(seed, i));
+        Pssmlt::restart_seed_pss(&mut ctx.pss, seed, i);
         let (_, sub) = ctx.evaluate_with_paths();
         let contribution = ctx.contributions().get(j)?;
         PathState::new(scene, contribution.path(&sub))
