@@ -75,7 +75,7 @@ pub struct RenderArgs {
     pub seed_paths: Option<usize>,
     /// Path-space Metropolis (mlt, memlt, hslt, hslt+mlt) with --time: the fraction of it the seeding
     /// pass runs for; the chains keep the energy of every path family where the seeding pass put it, so
-    /// a thin pass leaves blotches [default: 0.2]
+    /// a thin pass leaves blotches [default: 0.4]
     #[arg(long, value_name = "F", conflicts_with = "seed_paths")]
     pub seed_share: Option<f64>,
     /// Metropolis: number of Markov chains, fixed so the image does not depend on the thread count
