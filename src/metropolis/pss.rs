@@ -55,13 +55,9 @@ impl PssSampler {
     /// pass evaluates millions of fresh vectors, and growing each one from empty was 3% of an
     /// HSLT render's instructions.
     pub fn restart(&mut self, rng: Sampler) {
-        self.rng = rng;
-        self.samples.clear();
-        self.stream = 0;
-        self.index_in_stream = 0;
-        self.iteration = 0;
-        self.large_step = true;
-        self.last_large_step = 0;
+        let mut samples = std::mem::take(&mut self.samples);
+        samples.clear();
+        *self = PssSampler { samples, ..PssSampler::new(rng, self.stream_count) };
     }
 
     /// Replaces the stream future values are drawn from (values already realised stay). Chains started
