@@ -94,11 +94,11 @@ impl AreaLight {
         let b0 = 1.0 - b.x - b.y;
         let p = m.positions[i0] * b0 + m.positions[i1] * b.x + m.positions[i2] * b.y;
         let (ng, flat) = self.triangle_normals[tri];
-        let ns = match (flat, &m.normals) {
-            (Some(ns), _) => ns,
-            (None, Some(n)) => (n[i0] * b0 + n[i1] * b.x + n[i2] * b.y).try_normalize().unwrap_or(ng),
-            (None, None) => ng,
-        };
+        // `flat` is None only for a triangle whose vertex normals differ.
+        let ns = flat.unwrap_or_else(|| match &m.normals {
+            Some(n) => (n[i0] * b0 + n[i1] * b.x + n[i2] * b.y).try_normalize().unwrap_or(ng),
+            None => ng,
+        });
         let uv = match &m.uvs {
             Some(t) => t[i0] * b0 + t[i1] * b.x + t[i2] * b.y,
             None => b,

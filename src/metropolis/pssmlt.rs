@@ -192,12 +192,16 @@ impl Pssmlt {
 
     /// The primary-sample vector of seed sample `index` (replayable: chains restart from it).
     pub fn seed_pss(seed: u64, index: usize) -> PssSampler {
-        PssSampler::new(Sampler::new(seed, index as u64, SEED_STREAM), STREAM_COUNT)
+        PssSampler::new(Self::seed_stream(seed, index), STREAM_COUNT)
     }
 
     /// Turns `pss` into `seed_pss(seed, index)` without allocating.
     pub fn restart_seed_pss(pss: &mut PssSampler, seed: u64, index: usize) {
-        pss.restart(Sampler::new(seed, index as u64, SEED_STREAM));
+        pss.restart(Self::seed_stream(seed, index));
+    }
+
+    fn seed_stream(seed: u64, index: usize) -> Sampler {
+        Sampler::new(seed, index as u64, SEED_STREAM)
     }
 
     fn mutations(&self) -> Vec<WeightedMutation<PssSample, PssContext<'_>>> {
